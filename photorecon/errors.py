@@ -1,0 +1,53 @@
+"""Typed exceptions. Library code raises these; only the CLI turns them into one-line messages and exit codes.
+
+Every message says what was expected, what was found, and (where it helps) what to do.
+"""
+from __future__ import annotations
+
+
+class PhotoreconError(Exception):
+    """Base class. ``exit_code`` is the CLI's exit status for this failure class."""
+
+    exit_code = 1
+
+
+class BadArgumentError(PhotoreconError, ValueError):
+    """An argument or input value has the wrong shape, type or range."""
+
+    exit_code = 2
+
+
+class InputDataError(PhotoreconError):
+    """An input file or folder is missing, unreadable or inconsistent."""
+
+    exit_code = 3
+
+
+class NoImagesError(InputDataError):
+    """The image folder holds no usable image."""
+
+    exit_code = 4
+
+
+class SfMError(PhotoreconError):
+    """Structure-from-motion failed or registered too few images."""
+
+    exit_code = 5
+
+
+class NoDepthError(PhotoreconError):
+    """No view produced a usable depth map."""
+
+    exit_code = 6
+
+
+class EmptyMeshError(PhotoreconError):
+    """Fusion or cleaning left no triangle."""
+
+    exit_code = 7
+
+
+class OutputError(PhotoreconError):
+    """The output location cannot be used (not empty, inside the input, not writable)."""
+
+    exit_code = 8
