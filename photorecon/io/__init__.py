@@ -1,0 +1,1 @@
+"""Readers and writers at the edges: image folders, COLMAP models, transforms.json, depth maps, datasets."""

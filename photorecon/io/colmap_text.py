@@ -1,0 +1,163 @@
+"""COLMAP text models (cameras.txt, images.txt, points3D.txt), read and written without pycolmap.
+
+COLMAP's pixel convention (centre of the top-left pixel at (0.5, 0.5)) is converted here, once: everything
+returned uses photorecon's OpenCV convention. Binary models are read through ``photorecon.sfm``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..cameras import Intrinsics, View
+from ..conventions import colmap_from_opencv, opencv_from_colmap
+from ..errors import InputDataError
+from .atomic import atomic_write_text
+
+
+@dataclass
+class SparseModel:
+    """Cameras and sparse points. ``observations[name] = (uv (M, 2) OpenCV pixels, point3D ids (M,), -1 = none)``."""
+
+    views: list[View]
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    colors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.uint8))
+    point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    errors: np.ndarray | None = None
+    observations: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    def view(self, name: str) -> View:
+        for v in self.views:
+            if v.name == name:
+                return v
+        raise KeyError(name)
+
+    def points_seen_by(self, name: str) -> np.ndarray:
+        """World points (K, 3) observed in view ``name``."""
+        if name not in self.observations or len(self.points) == 0:
+            return np.zeros((0, 3))
+        ids = self.observations[name][1]
+        index = {int(pid): i for i, pid in enumerate(self.point_ids)}
+        rows = [index[int(p)] for p in ids if p >= 0 and int(p) in index]
+        return self.points[rows]
+
+    def track_lengths(self) -> np.ndarray:
+        counts = {int(p): 0 for p in self.point_ids}
+        for _, ids in self.observations.values():
+            for p in ids[ids >= 0]:
+                if int(p) in counts:
+                    counts[int(p)] += 1
+        return np.array([counts[int(p)] for p in self.point_ids], dtype=np.int64)
+
+
+def _image_key(view: View) -> str:
+    return view.extra.get("image_file", view.name)
+
+
+def _cam_key(view: View) -> tuple:
+    m, w, h, params = view.intrinsics.to_colmap()
+    return m, w, h, tuple(params)
+
+
+def write_colmap_text(model: SparseModel, folder: str | Path) -> Path:
+    """Write cameras.txt, images.txt, points3D.txt (COLMAP pixel convention) into ``folder``."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    cams: dict[tuple, int] = {}
+    cam_lines, img_lines = [], []
+    for view in model.views:
+        key = _cam_key(view)
+        if key not in cams:
+            cams[key] = len(cams) + 1
+            m, w, h, params = key
+            cam_lines.append(f"{cams[key]} {m} {w} {h} " + " ".join(repr(float(p)) for p in params))
+    # track lookup
+    tracks: dict[int, list[tuple[int, int]]] = {int(p): [] for p in model.point_ids}
+    for i, view in enumerate(model.views, start=1):
+        q, t = colmap_from_opencv(view.cam_from_world)
+        cam_id = cams[_cam_key(view)]
+        img_lines.append(f"{i} " + " ".join(repr(float(x)) for x in (*q, *t)) + f" {cam_id} {_image_key(view)}")
+        uv, ids = model.observations.get(view.name, (np.zeros((0, 2)), np.zeros(0, np.int64)))
+        parts = []
+        for j, ((u, v), pid) in enumerate(zip(uv, ids)):
+            parts.append(f"{float(u) + 0.5!r} {float(v) + 0.5!r} {int(pid)}")
+            if pid >= 0 and int(pid) in tracks:
+                tracks[int(pid)].append((i, j))
+        img_lines.append(" ".join(parts))
+    pt_lines = []
+    errors = model.errors if model.errors is not None else np.zeros(len(model.points))
+    for pid, xyz, rgb, err in zip(model.point_ids, model.points, model.colors, errors):
+        tr = " ".join(f"{a} {b}" for a, b in tracks[int(pid)])
+        pt_lines.append(f"{int(pid)} {float(xyz[0])!r} {float(xyz[1])!r} {float(xyz[2])!r} {int(rgb[0])} {int(rgb[1])} {int(rgb[2])} "
+                        f"{float(err)!r} {tr}")
+    atomic_write_text(folder / "cameras.txt", "# Camera list with one line of data per camera:\n"
+                      "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n" + "\n".join(cam_lines) + "\n")
+    atomic_write_text(folder / "images.txt", "# Image list with two lines of data per image:\n"
+                      "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+                      "#   POINTS2D[] as (X, Y, POINT3D_ID)\n" + "\n".join(img_lines) + "\n")
+    atomic_write_text(folder / "points3D.txt", "# 3D point list with one line of data per point:\n"
+                      "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+                      + "\n".join(pt_lines) + ("\n" if pt_lines else ""))
+    return folder
+
+
+def _data_lines(path: Path) -> list[str]:
+    if not path.is_file():
+        raise InputDataError(f"{path}: missing; a COLMAP text model needs cameras.txt, images.txt and points3D.txt")
+    return [ln.rstrip("\n") for ln in path.read_text().splitlines() if not ln.startswith("#")]
+
+
+def read_colmap_text(folder: str | Path) -> SparseModel:
+    """Read a COLMAP text model; raises ``InputDataError`` naming the file and line on malformed content."""
+    folder = Path(folder)
+    cams: dict[int, Intrinsics] = {}
+    path = folder / "cameras.txt"
+    for n, ln in enumerate(_data_lines(path), 1):
+        if not ln.strip():
+            continue
+        try:
+            tok = ln.split()
+            cams[int(tok[0])] = Intrinsics.from_colmap(tok[1], int(tok[2]), int(tok[3]), [float(x) for x in tok[4:]])
+        except (ValueError, IndexError) as exc:
+            raise InputDataError(f"{path}: cannot parse camera line {n!r}: {exc}") from None
+    path = folder / "images.txt"
+    lines = _data_lines(path)
+    # images.txt alternates a pose line and a (possibly empty) points line
+    while lines and not lines[-1].strip() and len(lines) % 2:
+        lines.pop()
+    views, obs = [], {}
+    for k in range(0, len(lines) - 1, 2):
+        ln, pts = lines[k], lines[k + 1]
+        if not ln.strip():
+            continue
+        try:
+            tok = ln.split()
+            q = np.array([float(x) for x in tok[1:5]])
+            t = np.array([float(x) for x in tok[5:8]])
+            cam_id, name = int(tok[8]), " ".join(tok[9:])
+            intr = cams[cam_id]
+            T = opencv_from_colmap(q / np.linalg.norm(q), t)
+            p = pts.split()
+            arr = np.array([float(x) for x in p], dtype=np.float64).reshape(-1, 3)
+        except (ValueError, IndexError, KeyError) as exc:
+            raise InputDataError(f"{path}: cannot parse image entry {ln!r}: {exc!r}") from None
+        stem = Path(name).stem
+        views.append(View(stem, intr, T, extra={"image_file": name, "colmap_image_id": int(tok[0]),
+                                                 "colmap_camera_id": cam_id}))
+        obs[stem] = (arr[:, :2] - 0.5, arr[:, 2].astype(np.int64))
+    path = folder / "points3D.txt"
+    ids, xyz, rgb, err = [], [], [], []
+    for ln in _data_lines(path):
+        tok = ln.split()
+        if not tok:
+            continue
+        try:
+            ids.append(int(tok[0]))
+            xyz.append([float(x) for x in tok[1:4]])
+            rgb.append([int(x) for x in tok[4:7]])
+            err.append(float(tok[7]))
+        except (ValueError, IndexError) as exc:
+            raise InputDataError(f"{path}: cannot parse point line {ln[:60]!r}: {exc}") from None
+    return SparseModel(views, np.array(xyz, float).reshape(-1, 3), np.array(rgb, np.uint8).reshape(-1, 3),
+                       np.array(ids, np.int64), np.array(err, float), obs)

@@ -1,0 +1,70 @@
+"""Image and depth-map files: reading with clear errors, writing atomically, colour-mapped previews."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputDataError
+from .atomic import atomic_path
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """8-bit RGB (H, W, 3). Raises ``InputDataError`` naming the file if it cannot be decoded."""
+    path = Path(path)
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise InputDataError(f"{path}: cannot read image (missing, corrupt or not an image)")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def write_image(path: str | Path, img: np.ndarray) -> Path:
+    """Write an RGB (H, W, 3) or grey (H, W) uint8 image atomically (format from the suffix)."""
+    path = Path(path)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), img):
+            raise InputDataError(f"{path}: could not write image")
+    return path
+
+
+def depth_preview(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """Colour-mapped (turbo) RGB preview of a depth map: near = warm, far = cold, no surface = black."""
+    d = np.asarray(depth, np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    out = np.zeros(d.shape + (3,), np.uint8)
+    if not valid.any():
+        return out
+    lo = np.percentile(d[valid], 1) if lo is None else lo
+    hi = np.percentile(d[valid], 99) if hi is None else hi
+    x = np.clip((d - lo) / max(hi - lo, 1e-12), 0, 1)
+    x = ((1 - x) * 255).astype(np.uint8)
+    col = cv2.cvtColor(cv2.applyColorMap(x, cv2.COLORMAP_TURBO), cv2.COLOR_BGR2RGB)
+    out[valid] = col[valid]
+    return out
+
+
+def read_depth(path: str | Path, shape: tuple[int, int] | None = None, view: str | None = None) -> np.ndarray:
+    """float32 z-depth (H, W) from a .npy file; NaN/inf/negative values raise, naming the view."""
+    path = Path(path)
+    name = view or path.stem
+    try:
+        d = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise InputDataError(f"view {name}: depth map {path} is missing") from None
+    except (ValueError, OSError) as exc:
+        raise InputDataError(f"view {name}: {path} is not a readable .npy depth map ({exc})") from None
+    if d.ndim != 2:
+        raise InputDataError(f"view {name}: depth map {path} has shape {d.shape}, expected (H, W)")
+    if shape is not None and d.shape != tuple(shape):
+        raise InputDataError(f"view {name}: depth map {path} has shape {d.shape}, but the camera is "
+                             f"{shape[1]}x{shape[0]} (expected (H, W) = {tuple(shape)})")
+    d = d.astype(np.float32)
+    bad = ~np.isfinite(d)
+    neg = d < 0
+    if bad.any() or neg.any():
+        raise InputDataError(f"view {name}: depth map {path} has {int(bad.sum())} NaN/inf and {int(neg.sum())} "
+                             "negative values; use 0 for pixels without depth")
+    return d

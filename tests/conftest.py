@@ -1,0 +1,33 @@
+"""Shared fixtures: small synthetic datasets rendered once per test session (no ../shared data)."""
+import os
+
+import pytest
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _quiet_progress():
+    from photorecon import progress
+
+    progress.set_enabled(False)
+
+
+@pytest.fixture(scope="session")
+def blob_small(tmp_path_factory):
+    """12 sphere views of the blob at 160x120."""
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("blob_small")
+    synthesize(SynthConfig(scene="blob", views=12, width=160, height=120, points=1500, seed=3), out, overwrite=True)
+    return out
+
+
+@pytest.fixture(scope="session")
+def blob_fusion(tmp_path_factory):
+    """24 sphere views of the blob at 320x240, for fusion accuracy."""
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("blob_fusion")
+    synthesize(SynthConfig(scene="blob", views=24, width=320, height=240, points=2000, seed=1), out, overwrite=True)
+    return out
