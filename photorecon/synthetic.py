@@ -206,9 +206,10 @@ class SolidNoise:
 class Appearance:
     """Surface albedo at hit points: the mesh's texture (UV) or vertex colours if present, else solid noise."""
 
-    def __init__(self, mesh: trimesh.Trimesh, seed: int = 0):
+    def __init__(self, mesh: trimesh.Trimesh, seed: int = 0, plain: bool = False):
         self.faces = np.asarray(mesh.faces)
         self.kind = "noise"
+        self.plain = plain
         vis = mesh.visual
         self.uv = self.image = self.vcolors = None
         if isinstance(vis, trimesh.visual.TextureVisuals) and vis.uv is not None:
@@ -234,6 +235,8 @@ class Appearance:
             return cv2.remap(self.image, x[:, None], y[:, None], cv2.INTER_LINEAR)[:, 0]
         if self.kind == "vertex":
             return np.einsum("nk,nkc->nc", bary.astype(np.float32), self.vcolors[self.faces[tri]])
+        if self.plain:
+            return np.full((len(points), 3), 0.75, np.float32)
         n = self.noise(points)
         # stretch contrast around the mean so SIFT sees strong gradients at every scale
         return np.clip(0.5 + 2.2 * (n - 0.5), 0.03, 1.0)
@@ -256,7 +259,7 @@ class Renderer:
     """Ray-casts one mesh; ``render(view)`` gives RGB, z-depth, mask, triangle ids and normals."""
 
     def __init__(self, mesh: trimesh.Trimesh, seed: int = 0, background: str = "color",
-                 background_color=(0.08, 0.08, 0.1), backdrop_radius: float = 8.0):
+                 background_color=(0.08, 0.08, 0.1), backdrop_radius: float = 8.0, plain: bool = False):
         import open3d as o3d
 
         self.mesh = mesh
@@ -266,7 +269,7 @@ class Renderer:
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(tmesh)
         self.o3d = o3d
-        self.appearance = Appearance(mesh, seed)
+        self.appearance = Appearance(mesh, seed, plain)
         self.face_normals = np.asarray(mesh.face_normals, np.float32)
         self.vertex_normals = np.asarray(mesh.vertex_normals, np.float32)
         self.background = background

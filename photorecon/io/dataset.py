@@ -1,0 +1,107 @@
+"""A dataset folder in the synth layout: cameras (sparse/0 or transforms.json), images, depth maps, masks.
+
+    DATASET/images/NAME.png|jpg   DATASET/depth/NAME.npy (+ optional NAME.conf.npy)   DATASET/masks/NAME.png
+    DATASET/sparse/0/             (COLMAP text or binary)  or  DATASET/transforms.json
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..cameras import View
+from ..errors import InputDataError
+from .colmap_text import SparseModel, read_colmap_text
+from .images import read_depth, read_image
+from .nerf import read_transforms
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+
+
+def read_model(path: str | Path) -> SparseModel:
+    """Cameras (and sparse points, if any) from a COLMAP folder (text or binary), a dataset folder holding
+    ``sparse/0`` or ``transforms.json``, or a transforms.json file."""
+    path = Path(path)
+    if path.is_file() and path.suffix == ".json":
+        return SparseModel(read_transforms(path))
+    if not path.is_dir():
+        raise InputDataError(f"{path}: no such COLMAP model folder or transforms.json")
+    if (path / "cameras.txt").is_file():
+        return read_colmap_text(path)
+    if (path / "cameras.bin").is_file():
+        from ..sfm import read_colmap_binary
+
+        return read_colmap_binary(path)
+    for sub in ("sparse/0", "sparse"):
+        if (path / sub / "cameras.txt").is_file() or (path / sub / "cameras.bin").is_file():
+            return read_model(path / sub)
+    if (path / "transforms.json").is_file():
+        return SparseModel(read_transforms(path / "transforms.json"))
+    raise InputDataError(f"{path}: no cameras found; expected sparse/0/ (COLMAP) or transforms.json")
+
+
+@dataclass
+class Dataset:
+    root: Path
+    model: SparseModel
+    depth_dir: Path
+
+    @classmethod
+    def open(cls, root: str | Path, depth_dir: str | Path | None = None) -> "Dataset":
+        root = Path(root)
+        if not root.is_dir():
+            raise InputDataError(f"{root}: no such dataset folder")
+        model = read_model(root)
+        if not model.views:
+            raise InputDataError(f"{root}: the camera model has no images")
+        return cls(root, model, Path(depth_dir) if depth_dir else root / "depth")
+
+    @property
+    def views(self) -> list[View]:
+        return self.model.views
+
+    def image_path(self, view: View) -> Path:
+        if view.image_path:
+            return Path(view.image_path)
+        name = view.extra.get("image_file", view.name)
+        p = self.root / "images" / name
+        if p.is_file():
+            return p
+        for suf in IMAGE_SUFFIXES:
+            q = self.root / "images" / (view.name + suf)
+            if q.is_file():
+                return q
+        return p
+
+    def image(self, view: View) -> np.ndarray:
+        img = read_image(self.image_path(view))
+        W, H = view.intrinsics.size
+        if img.shape[:2] != (H, W):
+            raise InputDataError(f"view {view.name}: image is {img.shape[1]}x{img.shape[0]} but its camera is {W}x{H}")
+        return img
+
+    def depth(self, view: View) -> np.ndarray:
+        p = Path(view.extra["depth_file_path"]) if "depth_file_path" in view.extra and not (self.depth_dir / f"{view.name}.npy").exists() \
+            else self.depth_dir / f"{view.name}.npy"
+        return read_depth(p, (view.intrinsics.height, view.intrinsics.width), view.name)
+
+    def has_depth(self, view: View) -> bool:
+        return (self.depth_dir / f"{view.name}.npy").is_file()
+
+    def confidence(self, view: View) -> np.ndarray | None:
+        p = self.depth_dir / f"{view.name}.conf.npy"
+        return np.load(p).astype(np.float32) if p.is_file() else None
+
+    def mask(self, view: View) -> np.ndarray | None:
+        p = Path(view.extra["mask_path"]) if "mask_path" in view.extra else self.root / "masks" / f"{view.name}.png"
+        if not p.is_file():
+            return None
+        m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        if m is None:
+            raise InputDataError(f"view {view.name}: mask {p} cannot be read")
+        if m.shape != (view.intrinsics.height, view.intrinsics.width):
+            raise InputDataError(f"view {view.name}: mask {p} is {m.shape[1]}x{m.shape[0]}, camera is "
+                                 f"{view.intrinsics.width}x{view.intrinsics.height}")
+        return m > 0

@@ -1,0 +1,131 @@
+"""Mesh cleaning, simplification, hole filling, cropping and export.
+
+trimesh ``Trimesh`` (with ``process=False``: geometry is never rewritten behind the caller's back) is the
+in-memory type; Open3D does the decimation and hole filling, trimesh the GLB/OBJ export.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .errors import BadArgumentError, EmptyMeshError
+from .io.atomic import atomic_path
+
+log = logging.getLogger("photorecon")
+
+
+@dataclass
+class CleanConfig:
+    """Settings of the cleaning stage."""
+
+    min_component: float = field(default=0.05, metadata={"help": "drop components with fewer faces than this fraction of the largest"})
+    fill_holes: float = field(default=0.0, metadata={"help": "fill holes up to this size (scene units; 0 = off)"})
+    target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)"})
+    cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
+    crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
+
+
+def to_open3d(mesh: trimesh.Trimesh):
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
+                                  o3d.utility.Vector3iVector(np.asarray(mesh.faces, np.int32)))
+    vc = _vertex_colors(mesh)
+    if vc is not None:
+        m.vertex_colors = o3d.utility.Vector3dVector(vc[:, :3].astype(np.float64) / 255.0)
+    return m
+
+
+def from_open3d(m) -> trimesh.Trimesh:
+    colors = None
+    if m.has_vertex_colors():
+        colors = (np.clip(np.asarray(m.vertex_colors), 0, 1) * 255).astype(np.uint8)
+    return trimesh.Trimesh(np.asarray(m.vertices), np.asarray(m.triangles), vertex_colors=colors, process=False)
+
+
+def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    if mesh.visual.kind == "vertex":
+        return np.asarray(mesh.visual.vertex_colors)
+    return None
+
+
+def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None) -> trimesh.Trimesh:
+    """Remove duplicated and degenerate faces, unreferenced vertices and small components; then optionally
+    crop, fill holes and simplify. Raises ``EmptyMeshError`` if nothing is left."""
+    cfg = cfg or CleanConfig()
+    if not len(mesh.faces):
+        raise EmptyMeshError("the mesh has no triangle")
+    m = to_open3d(mesh)
+    m.remove_duplicated_vertices()
+    m.remove_duplicated_triangles()
+    m.remove_degenerate_triangles()
+    m.remove_unreferenced_vertices()
+    if cfg.crop is not None:
+        if len(cfg.crop) != 6:
+            raise BadArgumentError(f"crop: expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {len(cfg.crop)}")
+        import open3d as o3d
+
+        lo, hi = np.array(cfg.crop[:3]), np.array(cfg.crop[3:])
+        if np.any(hi <= lo):
+            raise BadArgumentError(f"crop: expected min < max on every axis, got {list(cfg.crop)}")
+        m = m.crop(o3d.geometry.AxisAlignedBoundingBox(lo, hi))
+    if len(m.triangles) and cfg.min_component > 0:
+        labels, counts, _ = m.cluster_connected_triangles()
+        labels, counts = np.asarray(labels), np.asarray(counts)
+        small = counts < cfg.min_component * counts.max()
+        m.remove_triangles_by_mask(small[labels])
+        m.remove_unreferenced_vertices()
+    if not len(m.triangles):
+        raise EmptyMeshError("cleaning left no triangle (everything cropped or in small components)")
+    out = from_open3d(m)
+    if cfg.fill_holes > 0:
+        out = fill_holes(out, cfg.fill_holes)
+    if cfg.cluster_voxel > 0:
+        out = from_open3d(to_open3d(out).simplify_vertex_clustering(cfg.cluster_voxel))
+    if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
+        out = simplify(out, cfg.target_faces)
+    return out
+
+
+def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
+    """Quadric error decimation (Open3D) to about ``target_faces`` triangles."""
+    if target_faces < 4:
+        raise BadArgumentError(f"target faces: expected >= 4, got {target_faces}")
+    return from_open3d(to_open3d(mesh).simplify_quadric_decimation(int(target_faces)))
+
+
+def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:
+    """Close holes whose boundary is shorter than ``hole_size`` (Open3D tensor ``fill_holes``)."""
+    import open3d as o3d
+
+    t = o3d.t.geometry.TriangleMesh.from_legacy(to_open3d(mesh))
+    filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
+    out = from_open3d(filled)
+    return out if len(out.faces) >= len(mesh.faces) else mesh
+
+
+def export(mesh: trimesh.Trimesh, path: str | Path) -> Path:
+    """Write PLY (binary, vertex colours), OBJ or GLB by suffix, atomically."""
+    path = Path(path)
+    suf = path.suffix.lower()
+    if suf not in (".ply", ".obj", ".glb"):
+        raise BadArgumentError(f"{path}: unsupported mesh format; expected .ply, .obj or .glb")
+    if not len(mesh.faces):
+        raise EmptyMeshError(f"{path}: refusing to write an empty mesh")
+    with atomic_path(path) as tmp:
+        if suf == ".ply":
+            data = trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False)
+            Path(tmp).write_bytes(data)
+        else:
+            mesh.export(tmp, file_type=suf[1:])
+    return path
+
+
+def load(path: str | Path) -> trimesh.Trimesh:
+    from .synthetic import load_mesh
+
+    return load_mesh(path)

@@ -1,0 +1,160 @@
+"""Accuracy metrics against ground truth: meshes (Chamfer, F-score, normal consistency) and depth.
+
+Mesh metrics sample ``n_samples`` points area-uniformly on each mesh with a fixed seed (default 200,000,
+seed 0) and measure exact point-to-triangle distances to the other mesh (Open3D ``RaycastingScene``):
+accuracy = result -> truth, completeness = truth -> result, Chamfer = their mean;
+precision / recall = fraction of those distances below tau; F = 2PR / (P + R).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import trimesh
+
+from .errors import BadArgumentError, EmptyMeshError
+
+
+@dataclass
+class MeshMetrics:
+    accuracy_mean: float
+    accuracy_median: float
+    completeness_mean: float
+    completeness_median: float
+    chamfer: float
+    tau: float
+    precision: float
+    recall: float
+    fscore: float
+    precision_half: float  # at tau / 2
+    recall_half: float
+    fscore_half: float
+    normal_consistency: float
+    diagonal: float
+    n_samples: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class _Distance:
+    def __init__(self, mesh: trimesh.Trimesh):
+        import open3d as o3d
+
+        t = o3d.t.geometry.TriangleMesh()
+        t.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
+        t.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(t)
+        self.normals = np.asarray(mesh.face_normals)
+        self.o3d = o3d
+
+    def query(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(distance (N,), normal of the closest triangle (N, 3))."""
+        ans = self.scene.compute_closest_points(self.o3d.core.Tensor(pts.astype(np.float32)))
+        closest = ans["points"].numpy().astype(np.float64)
+        return np.linalg.norm(pts - closest, axis=1), self.normals[ans["primitive_ids"].numpy()]
+
+
+def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    pts, face = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    return np.asarray(pts), np.asarray(mesh.face_normals)[face]
+
+
+def mesh_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, tau: float | None = None, n_samples: int = 200_000,
+                 seed: int = 0, icp: bool = False) -> MeshMetrics:
+    """Compare ``result`` with ground truth ``gt``. ``tau`` defaults to 1% of the truth's bounding-box
+    diagonal; the "half" figures use tau / 2 (0.5%). ``icp`` first refines the result onto the truth."""
+    for name, m in (("result", result), ("ground truth", gt)):
+        if m is None or not len(m.faces):
+            raise EmptyMeshError(f"{name} mesh has no triangle: nothing to evaluate")
+    diag = float(np.linalg.norm(gt.bounds[1] - gt.bounds[0]))
+    tau = 0.01 * diag if tau is None else float(tau)
+    if not tau > 0:
+        raise BadArgumentError(f"tau: expected > 0, got {tau}")
+    if icp:
+        result = icp_refine(result, gt, max_dist=2 * tau)
+    pr, nr = sample_surface(result, n_samples, seed)
+    pg, ng = sample_surface(gt, n_samples, seed + 1)
+    d_acc, n_acc = _Distance(gt).query(pr)
+    d_comp, n_comp = _Distance(result).query(pg)
+    nc = 0.5 * (np.abs(np.einsum("nc,nc->n", nr, n_acc)).mean() + np.abs(np.einsum("nc,nc->n", ng, n_comp)).mean())
+
+    def prf(t):
+        p, r = float((d_acc < t).mean()), float((d_comp < t).mean())
+        return p, r, (2 * p * r / (p + r) if p + r > 0 else 0.0)
+
+    p, r, f = prf(tau)
+    p2, r2, f2 = prf(tau / 2)
+    return MeshMetrics(float(d_acc.mean()), float(np.median(d_acc)), float(d_comp.mean()), float(np.median(d_comp)),
+                       float(0.5 * (d_acc.mean() + d_comp.mean())), tau, p, r, f, p2, r2, f2, float(nc), diag,
+                       n_samples)
+
+
+def icp_refine(result: trimesh.Trimesh, gt: trimesh.Trimesh, max_dist: float) -> trimesh.Trimesh:
+    """Rigidly align ``result`` to ``gt`` with point-to-plane ICP (Open3D) on surface samples."""
+    import open3d as o3d
+
+    ps, _ = sample_surface(result, 50_000, 0)
+    pg, ng = sample_surface(gt, 50_000, 1)
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ps))
+    dst = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pg))
+    dst.normals = o3d.utility.Vector3dVector(ng)
+    reg = o3d.pipelines.registration.registration_icp(
+        src, dst, max_dist, np.eye(4), o3d.pipelines.registration.TransformationEstimationPointToPlane())
+    out = result.copy()
+    out.apply_transform(reg.transformation)
+    return out
+
+
+def error_colors(result: trimesh.Trimesh, gt: trimesh.Trimesh, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-vertex distance to ``gt`` and RGB colours (turbo, 0 -> blue ... >= 2 tau -> red)."""
+    import cv2
+
+    d, _ = _Distance(gt).query(np.asarray(result.vertices, np.float64))
+    x = (np.clip(d / (2 * tau), 0, 1) * 255).astype(np.uint8)
+    rgb = cv2.applyColorMap(x[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
+    return d, rgb
+
+
+def depth_metrics(pred: np.ndarray, gt: np.ndarray, rel_threshold: float = 0.01) -> dict:
+    """Depth errors on pixels valid in both: AbsRel, RMSE, fraction within ``rel_threshold`` of the truth,
+    and coverage (fraction of true surface pixels with a prediction)."""
+    pred, gt = np.asarray(pred, np.float64), np.asarray(gt, np.float64)
+    if pred.shape != gt.shape:
+        raise BadArgumentError(f"depth metrics: shapes differ, {pred.shape} vs {gt.shape}")
+    both = (pred > 0) & (gt > 0) & np.isfinite(pred)
+    if not both.any():
+        return {"abs_rel": float("nan"), "rmse": float("nan"), "within": 0.0, "coverage": 0.0, "pixels": 0}
+    rel = np.abs(pred[both] - gt[both]) / gt[both]
+    return {"abs_rel": float(rel.mean()), "rmse": float(np.sqrt(((pred[both] - gt[both]) ** 2).mean())),
+            "within": float((rel < rel_threshold).mean()), "coverage": float(both.sum() / max((gt > 0).sum(), 1)),
+            "pixels": int(both.sum())}
+
+
+def doubled_shell_fraction(mesh: trimesh.Trimesh, tau: float, n_samples: int = 50_000, seed: int = 0) -> float:
+    """Fraction of surface samples that have *another* sheet of the same mesh within ``tau`` along their
+    normal (either side) facing the same way: the overlapping shells that concatenated per-view meshes give.
+    A single clean surface scores ~0; a mesh duplicated with a small offset scores ~1."""
+    import open3d as o3d
+
+    pts, nrm = sample_surface(mesh, n_samples, seed)
+    t = o3d.t.geometry.TriangleMesh()
+    t.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
+    t.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(t)
+    fn = np.asarray(mesh.face_normals)
+    eps = 1e-3 * tau
+    doubled = np.zeros(len(pts), bool)
+    for sign in (1.0, -1.0):
+        d = sign * nrm
+        rays = np.concatenate([pts + eps * d, d], 1).astype(np.float32)
+        ans = scene.cast_rays(o3d.core.Tensor(rays))
+        th = ans["t_hit"].numpy()
+        hit = np.isfinite(th) & (th < tau)
+        ids = ans["primitive_ids"].numpy()
+        same = np.zeros(len(pts), bool)
+        same[hit] = np.einsum("nc,nc->n", fn[ids[hit]], nrm[hit]) > 0.5
+        doubled |= same
+    return float(doubled.mean())

@@ -1,0 +1,74 @@
+"""PNG previews of results: a mesh rendered from a few viewpoints (with camera frusta), error-coloured meshes."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+
+from .cameras import Intrinsics, View, invert_rigid, look_at_views, project
+from .io.images import write_image
+
+
+def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
+                   extra_points: np.ndarray | None = None) -> list[View]:
+    lo, hi = mesh.bounds
+    if extra_points is not None and len(extra_points):
+        lo, hi = np.minimum(lo, extra_points.min(0)), np.maximum(hi, extra_points.max(0))
+    center = (lo + hi) / 2
+    radius = float(np.linalg.norm(hi - lo)) * 1.1
+    az = np.radians(np.linspace(30, 390, n, endpoint=False))
+    el = np.radians(25.0)
+    up = np.asarray(up, float)
+    # an orthonormal frame around `up`
+    a = np.array([1.0, 0, 0]) if abs(up[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(up, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    pos = center + radius * (np.cos(el) * (np.cos(az)[:, None] * e1 + np.sin(az)[:, None] * e2) + np.sin(el) * up)
+    intr = Intrinsics.from_fov(size, size, 55.0)
+    return [View(f"preview_{i}", intr, T) for i, T in enumerate(look_at_views(pos, center, up))]
+
+
+def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] | None = None, n: int = 4,
+                   size: int = 360, up=None) -> Path:
+    """Render ``mesh`` (vertex colours if any, else grey) from ``n`` viewpoints side by side, drawing the
+    ``cameras`` as frusta; write a PNG."""
+    from .synthetic import Renderer
+
+    if up is None:
+        up = (0.0, 0.0, 1.0)
+        if cameras:  # the cameras' average "up" (-y in OpenCV) is a good guess of the scene's up
+            ups = np.array([-invert_rigid(c.cam_from_world)[:3, 1] for c in cameras]).mean(0)
+            if np.linalg.norm(ups) > 0.3:
+                up = tuple(ups / np.linalg.norm(ups))
+    has_colors = mesh.visual.kind == "vertex" and np.asarray(mesh.visual.vertex_colors)[:, :3].std() > 1
+    r = Renderer(mesh, plain=not has_colors, background_color=(1.0, 1.0, 1.0))
+    tiles = []
+    diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
+    centers = np.array([c.center for c in cameras]) if cameras else None
+    for v in _preview_views(mesh, n, size, up, centers):
+        img = r.render(v).rgb.copy()
+        for cam in cameras or []:
+            _draw_frustum(img, v, cam, 0.06 * diag)
+        tiles.append(img)
+    grid = np.concatenate(tiles, axis=1)
+    return write_image(path, grid)
+
+
+def _draw_frustum(img: np.ndarray, viewer: View, cam: View, scale: float) -> None:
+    W, H = cam.intrinsics.size
+    corners_px = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
+    rays = cam.intrinsics.pixel_rays(corners_px)
+    rays *= scale / np.linalg.norm(rays, axis=1, keepdims=True).max()
+    wfc = invert_rigid(cam.cam_from_world)
+    pts = np.vstack([wfc[:3, 3], rays @ wfc[:3, :3].T + wfc[:3, 3]])
+    uv, z = project(pts, viewer.intrinsics, viewer.cam_from_world)
+    if np.any(~(z > 0)):
+        return
+    p = [tuple(int(round(c)) for c in q) for q in uv]
+    col = (220, 40, 40)
+    for i in range(1, 5):
+        cv2.line(img, p[0], p[i], col, 1, cv2.LINE_AA)
+        cv2.line(img, p[i], p[1 + i % 4], col, 1, cv2.LINE_AA)
