@@ -38,7 +38,7 @@ class FusionConfig:
     mesher: Literal["tsdf", "grid"] = field(default="tsdf", metadata={"help": "TSDF fusion or per-view grid meshing"})
     voxel_size: float | None = field(default=None, metadata={"help": "TSDF voxel size in scene units (default: scene diagonal / voxels-across)"})
     voxels_across: int = field(default=512, metadata={"help": "voxels across the scene diagonal when --voxel-size is not given"})
-    trunc_voxels: float = field(default=4.0, metadata={"help": "TSDF truncation distance in voxels"})
+    trunc_voxels: float = field(default=2.0, metadata={"help": "TSDF truncation distance in voxels"})
     weight_threshold: float = field(default=1.0, metadata={"help": "min. integrated weight (views) of an extracted voxel"})
     depth_min: float = field(default=0.0, metadata={"help": "ignore depth below this (scene units)"})
     depth_max: float | None = field(default=None, metadata={"help": "ignore depth beyond this (default: no limit)"})
@@ -111,7 +111,7 @@ def _available_bytes() -> int:
 def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:
     """Count the voxel blocks the depth maps touch (sampled), with the truncation band: the grid's size."""
     block = voxel * _BLOCK_RES
-    keys = set()
+    keys = []
     for f in frames:
         H, W = f.depth.shape
         step = max(1, int(np.sqrt(H * W / 20000)))
@@ -124,10 +124,10 @@ def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int
         ray = pts - c
         ray /= np.linalg.norm(ray, axis=1, keepdims=True)
         for s in (-trunc, 0.0, trunc):
-            k = np.floor((pts + s * ray) / block).astype(np.int64)
-            keys.update(map(tuple, np.unique(k, axis=0)))
+            keys.append(np.unique(_cell_keys(pts + s * ray, block)))
+    n = len(np.unique(np.concatenate(keys))) if keys else 0
     # sampled pixels miss blocks between samples when a pixel is smaller than a block: scale up
-    return int(len(keys) * 1.5) + 64
+    return int(n * 1.5) + 64
 
 
 def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
@@ -166,8 +166,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
         color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
         color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
-        coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, cfg.trunc_voxels)
-        vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, cfg.trunc_voxels)
+        coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+        vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
     mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
     V = mesh.vertex.positions.numpy().astype(np.float64)
     F = mesh.triangle.indices.numpy().astype(np.int64)
@@ -179,6 +179,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         colors = (np.clip(mesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
     out = trimesh.Trimesh(V, F, vertex_colors=colors, process=False)
     out.metadata["voxel_size"] = voxel
+    out.metadata["mesher"] = "tsdf"
     return out
 
 
@@ -291,6 +292,7 @@ def grid_fuse(frames: list[DepthFrame], cfg: FusionConfig) -> trimesh.Trimesh:
         raise EmptyMeshError("grid meshing left no triangle")
     merged = trimesh.Trimesh(V, F, vertex_colors=C, process=False)
     merged.metadata["cell_size"] = cell
+    merged.metadata["mesher"] = "grid"
     return merged
 
 

@@ -22,7 +22,7 @@ log = logging.getLogger("photorecon")
 class CleanConfig:
     """Settings of the cleaning stage."""
 
-    min_component: float = field(default=0.05, metadata={"help": "drop components with fewer faces than this fraction of the largest"})
+    min_component: float | None = field(default=None, metadata={"help": "drop components with fewer faces than this fraction of the largest (default: 0.05; off for grid meshes, whose per-view patches are disconnected by construction)"})
     fill_holes: float = field(default=0.0, metadata={"help": "fill holes up to this size (scene units; 0 = off)"})
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)"})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
@@ -57,6 +57,9 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None) -> trimesh.Trim
     """Remove duplicated and degenerate faces, unreferenced vertices and small components; then optionally
     crop, fill holes and simplify. Raises ``EmptyMeshError`` if nothing is left."""
     cfg = cfg or CleanConfig()
+    min_component = cfg.min_component
+    if min_component is None:
+        min_component = 0.0 if mesh.metadata.get("mesher") == "grid" else 0.05
     if not len(mesh.faces):
         raise EmptyMeshError("the mesh has no triangle")
     m = to_open3d(mesh)
@@ -73,10 +76,10 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None) -> trimesh.Trim
         if np.any(hi <= lo):
             raise BadArgumentError(f"crop: expected min < max on every axis, got {list(cfg.crop)}")
         m = m.crop(o3d.geometry.AxisAlignedBoundingBox(lo, hi))
-    if len(m.triangles) and cfg.min_component > 0:
+    if len(m.triangles) and min_component > 0:
         labels, counts, _ = m.cluster_connected_triangles()
         labels, counts = np.asarray(labels), np.asarray(counts)
-        small = counts < cfg.min_component * counts.max()
+        small = counts < min_component * counts.max()
         m.remove_triangles_by_mask(small[labels])
         m.remove_unreferenced_vertices()
     if not len(m.triangles):

@@ -1,0 +1,38 @@
+"""Peak-memory and time measurement for stage reports and benchmarks (Linux: /proc VmHWM, reset via clear_refs)."""
+from __future__ import annotations
+
+import resource
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+
+def reset_peak() -> bool:
+    """Reset the process's peak resident set (Linux >= 4.0); False where unsupported."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_bytes() -> int:
+    """Peak resident set since the last ``reset_peak`` (or process start)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+@contextmanager
+def measure(record: dict, key: str):
+    """``with measure(stats, "fusion"):`` adds ``stats[key] = {"seconds": s, "peak_mb": m}``."""
+    reset_peak()
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        record[key] = {"seconds": round(time.perf_counter() - t0, 3), "peak_mb": round(peak_bytes() / 2**20, 1)}
