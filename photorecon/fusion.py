@@ -36,7 +36,7 @@ class FusionConfig:
     """Settings of the fusion stage (``photorecon fuse``)."""
 
     mesher: Literal["tsdf", "grid"] = field(default="tsdf", metadata={"help": "TSDF fusion or per-view grid meshing"})
-    voxel_size: float | None = field(default=None, metadata={"help": "TSDF voxel size in scene units (default: scene diagonal / voxels-across)"})
+    voxel_size: float | None = field(default=None, metadata={"help": "TSDF voxel size in scene units (default: scene diagonal / voxels-across, at least 1.5 pixel footprints)"})
     voxels_across: int = field(default=512, metadata={"help": "voxels across the scene diagonal when --voxel-size is not given"})
     trunc_voxels: float = field(default=2.0, metadata={"help": "TSDF truncation distance in voxels"})
     weight_threshold: float = field(default=1.0, metadata={"help": "min. integrated weight (views) of an extracted voxel"})
@@ -140,7 +140,9 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
     voxel = cfg.voxel_size
     if voxel is None:
-        voxel = scene_diagonal(frames, sparse_points) / cfg.voxels_across
+        # the scene's size / voxels_across, but not finer than the pixels' footprint on the surface
+        footprint = float(np.median([np.median(f.depth[f.depth > 0]) / f.view.intrinsics.fx for f in frames]))
+        voxel = max(scene_diagonal(frames, sparse_points) / cfg.voxels_across, 1.5 * footprint)
     if not voxel > 0:
         raise BadArgumentError(f"voxel size: expected > 0, got {voxel}")
     trunc = cfg.trunc_voxels * voxel
