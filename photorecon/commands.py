@@ -145,3 +145,57 @@ def _print_report(report: dict) -> None:
         print(f"  rotation error (deg)  mean {p['rot_mean_deg']:.4g}  median {p['rot_median_deg']:.4g}  max {p['rot_max_deg']:.4g}")
         print(f"  centre error          mean {p['center_mean']:.4g}  median {p['center_median']:.4g}  max {p['center_max']:.4g}"
               f"  ({100 * p['center_mean_rel']:.4f}% of spread)")
+
+
+@command
+def sfm(sub):
+    from .sfm import SfMConfig
+
+    p = sub.add_parser("sfm", help="camera poses for an image folder (COLMAP SfM via pycolmap)",
+                       description="Structure from motion: writes OUT/images (undistorted), OUT/sparse/0 "
+                                   "(COLMAP text) and OUT/transforms.json; stages are cached in OUT/colmap.")
+    p.add_argument("images", help="image folder (never written to)")
+    _out_args(p)
+    p.add_argument("--force", action="store_true", help="recompute every stage instead of reusing cached ones")
+    add_config_arguments(p, SfMConfig)
+    p.set_defaults(func=_run_sfm)
+
+
+def _run_sfm(args):
+    from .io.output import prepare_output
+    from .sfm import SfMConfig, run_sfm
+
+    cfg = config_from_args(SfMConfig, args)
+    out = prepare_output(args.out, args.overwrite, inputs=(args.images,))
+    res = run_sfm(args.images, out, cfg, force=args.force)
+    n = len(res.registered) + len(res.unregistered)
+    print(f"sfm: {len(res.registered)} of {n} images registered, {len(res.model.points)} sparse points -> "
+          f"{out}/sparse/0, {out}/transforms.json" + (f" (reused: {', '.join(res.cached)})" if res.cached else ""))
+    return 0
+
+
+@command
+def convert(sub):
+    p = sub.add_parser("convert", help="convert cameras between COLMAP (text/binary), transforms.json and PyTorch3D",
+                       description="SRC: COLMAP folder (text or binary), dataset folder or transforms.json. "
+                                   "DST: a folder (COLMAP, --to colmap-text|colmap-bin), a .json file "
+                                   "(transforms.json, or PyTorch3D cameras with --to pytorch3d).")
+    p.add_argument("src")
+    p.add_argument("dst")
+    p.add_argument("--to", choices=["auto", "colmap-text", "colmap-bin", "transforms", "pytorch3d"], default="auto",
+                   help="output format (default: from DST: folder -> colmap-text, .json -> transforms)")
+    p.add_argument("--world", choices=["none", "nerfstudio", "instant-ngp"], default="none",
+                   help="transforms.json world orientation to write (default: none = photorecon's world)")
+    p.add_argument("--src-world", choices=["none", "nerfstudio", "instant-ngp"], default=None,
+                   help="world orientation of a transforms.json SRC (default: as recorded in the file)")
+    p.set_defaults(func=_run_convert)
+
+
+def _run_convert(args):
+    from pathlib import Path
+
+    from .io.convert import convert_cameras
+
+    dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world)
+    print(f"convert: {args.src} -> {dst}")
+    return 0

@@ -158,3 +158,52 @@ def doubled_shell_fraction(mesh: trimesh.Trimesh, tau: float, n_samples: int = 5
         same[hit] = np.einsum("nc,nc->n", fn[ids[hit]], nrm[hit]) > 0.5
         doubled |= same
     return float(doubled.mean())
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``dst ~ s * R @ src + t`` (Umeyama 1991). Returns (s, R, t)."""
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
+        raise BadArgumentError(f"Sim3 alignment: expected two (N, 3) arrays with N >= 3, got {src.shape} and {dst.shape}")
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    var = (xs ** 2).sum() / len(src)
+    s = float(np.trace(np.diag(D) @ S) / var) if with_scale and var > 0 else 1.0
+    return s, R, mu_d - s * R @ mu_s
+
+
+def pose_metrics(estimate: list, reference: list) -> dict:
+    """Compare estimated cameras with reference cameras (``View`` lists, matched by name): Sim3 (Umeyama)
+    alignment of the camera centres, then per-image rotation error (degrees) and centre error (absolute,
+    in reference units, and relative to the reference cameras' spread = RMS distance of the reference
+    centres from their centroid)."""
+    ref = {v.name: v for v in reference}
+    pairs = [(e, ref[e.name]) for e in estimate if e.name in ref]
+    if len(pairs) < 3:
+        raise BadArgumentError(f"pose metrics: {len(pairs)} images in common between estimate and reference; "
+                               "need at least 3 (names must match)")
+    ce = np.array([e.center for e, _ in pairs])
+    cr = np.array([r.center for _, r in pairs])
+    s, R, t = umeyama(ce, cr)
+    c_al = s * ce @ R.T + t
+    cerr = np.linalg.norm(c_al - cr, axis=1)
+    rerr = []
+    for e, r in pairs:
+        R_e = e.cam_from_world[:3, :3] @ R.T  # estimated camera rotation, in the reference world
+        d = R_e @ r.cam_from_world[:3, :3].T
+        rerr.append(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
+    rerr = np.array(rerr)
+    spread = float(np.sqrt(((cr - cr.mean(0)) ** 2).sum(1).mean()))
+    return {"registered": len(pairs), "reference_count": len(reference), "estimate_count": len(estimate),
+            "missing": sorted(set(ref) - {e.name for e, _ in pairs}),
+            "rot_mean_deg": float(rerr.mean()), "rot_median_deg": float(np.median(rerr)), "rot_max_deg": float(rerr.max()),
+            "center_mean": float(cerr.mean()), "center_median": float(np.median(cerr)), "center_max": float(cerr.max()),
+            "spread": spread, "center_mean_rel": float(cerr.mean() / spread), "center_max_rel": float(cerr.max() / spread),
+            "sim3_scale": s, "per_image": {e.name: {"rot_deg": float(a), "center": float(b)}
+                                           for (e, _), a, b in zip(pairs, rerr, cerr)}}

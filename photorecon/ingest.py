@@ -1,0 +1,126 @@
+"""Ingest an image folder: find images (any letter case), decode them, apply EXIF orientation, read EXIF focal
+length priors, and copy them into a working folder (the user's folder is never written to)."""
+from __future__ import annotations
+
+import logging
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .cameras import Intrinsics
+from .errors import BadArgumentError, InputDataError, NoImagesError
+from .io.atomic import atomic_path
+
+log = logging.getLogger("photorecon")
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+
+@dataclass
+class IngestedImage:
+    name: str  # file name in the working folder
+    source: Path
+    width: int
+    height: int
+    focal_prior_px: float | None = None  # from EXIF, in pixels of the oriented image
+
+
+@dataclass
+class Ingest:
+    images: list[IngestedImage]
+    skipped: list[str] = field(default_factory=list)
+
+
+def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
+    """(image files sorted by name, other files) in ``folder`` (not recursive)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise NoImagesError(f"{folder}: no such image folder")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+    imgs = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    return imgs, [p for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
+
+
+def _exif(path: Path) -> tuple[int, float | None]:
+    """(EXIF orientation, focal length prior as a fraction of the long side) or (1, None)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            exif = im.getexif()
+            orientation = int(exif.get(0x0112, 1) or 1)
+            sub = exif.get_ifd(0x8769) if hasattr(exif, "get_ifd") else {}
+            f35 = sub.get(0xA405) or exif.get(0xA405)
+            if f35:
+                return orientation, float(f35) / 36.0
+            f_mm = sub.get(0x920A) or exif.get(0x920A)
+            xres = sub.get(0xA20E)  # FocalPlaneXResolution
+            unit = sub.get(0xA210, 2)  # FocalPlaneResolutionUnit: 2 = inch, 3 = cm, 4 = mm
+            w = sub.get(0xA002) or im.width
+            if f_mm and xres:
+                mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0}.get(int(unit), 25.4)
+                sensor_w_mm = float(w) / float(xres) * mm_per_unit
+                if sensor_w_mm > 0:
+                    return orientation, float(f_mm) / sensor_w_mm * (float(w) / max(im.width, im.height))
+            return orientation, None
+    except Exception:  # no EXIF or a format PIL cannot parse: no prior
+        return 1, None
+
+
+def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> Ingest:
+    """Decode every image of ``folder``; copy the readable ones to ``work`` (EXIF orientation applied).
+
+    Unreadable and non-image files are skipped with one warning that lists them. Raises ``NoImagesError``
+    when fewer than ``min_images`` readable images remain.
+    """
+    folder, work = Path(folder), Path(work)
+    paths, others = list_images(folder)
+    work.mkdir(parents=True, exist_ok=True)
+    out, bad = [], []
+    names = set()
+    for p in paths:
+        img = cv2.imread(str(p), cv2.IMREAD_COLOR)  # OpenCV applies EXIF orientation
+        if img is None or img.size == 0:
+            bad.append(p.name)
+            continue
+        orientation, focal_frac = _exif(p)
+        name = p.name
+        if name.lower() in names:
+            raise InputDataError(f"{folder}: two images named {name!r} differing only in letter case")
+        names.add(name.lower())
+        dst = work / name
+        if not dst.exists():
+            with atomic_path(dst) as tmp:
+                if orientation in (0, 1):
+                    shutil.copyfile(p, tmp)  # byte copy keeps EXIF for COLMAP
+                elif not cv2.imwrite(str(tmp), img):
+                    raise InputDataError(f"{p}: could not write the oriented copy")
+        H, W = img.shape[:2]
+        out.append(IngestedImage(name, p, W, H, focal_frac * max(W, H) if focal_frac else None))
+    skipped = bad + [p.name for p in others]
+    if skipped:
+        log.warning("skipped %d file(s) that are not readable images: %s", len(skipped),
+                    ", ".join(skipped[:20]) + (" ..." if len(skipped) > 20 else ""))
+    if len(out) < min_images:
+        found = f"{len(out)} readable image(s)" if out else "no readable image"
+        raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp); "
+                            f"at least {min_images} needed")
+    return Ingest(out, skipped)
+
+
+def read_K(path: str | Path, width: int, height: int) -> Intrinsics:
+    """A 3x3 K text file (pixel (0, 0) at the centre of the top-left pixel) -> ``Intrinsics``."""
+    path = Path(path)
+    try:
+        K = np.loadtxt(path, dtype=np.float64)
+    except (OSError, ValueError) as exc:
+        raise InputDataError(f"{path}: cannot read a 3x3 K matrix ({exc})") from None
+    if K.shape != (3, 3):
+        raise InputDataError(f"{path}: expected a 3x3 K matrix, got shape {K.shape}")
+    try:
+        return Intrinsics.from_K(K, width, height)
+    except BadArgumentError as exc:
+        raise InputDataError(f"{path}: {exc}") from None

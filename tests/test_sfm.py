@@ -1,0 +1,214 @@
+"""SfM through pycolmap on synthetic images; camera import/export; pose metrics; bad image folders."""
+import hashlib
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from photorecon.cameras import View
+from photorecon.cli import main
+from photorecon.errors import NoImagesError, SfMError
+from photorecon.ingest import ingest_folder
+from photorecon.io.colmap_text import read_colmap_text
+from photorecon.io.convert import convert_cameras
+from photorecon.io.dataset import read_model
+from photorecon.metrics import pose_metrics
+from photorecon.sfm import SfMConfig, run_sfm
+
+
+@pytest.fixture(scope="module")
+def ring16(tmp_path_factory):
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("ring16")
+    synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=320, height=240, points=800, seed=5), out,
+               overwrite=True)
+    return out
+
+
+def _tree_hash(folder):
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        h.update(str(p.relative_to(folder)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.mark.slow
+def test_sfm_registers_all_and_matches_truth(ring16, tmp_path):
+    before = _tree_hash(ring16 / "images")
+    out = tmp_path / "sfm"
+    res = run_sfm(ring16 / "images", out, SfMConfig())
+    assert len(res.registered) == 16 and not res.unregistered
+    est = read_model(out / "sparse" / "0")
+    ref = read_model(ring16 / "sparse" / "0")
+    m = pose_metrics(est.views, ref.views)
+    assert m["registered"] == 16
+    assert m["rot_mean_deg"] < 0.3 and m["center_mean_rel"] < 0.004, m
+    # transforms.json agrees with sparse/0
+    tj = read_model(out / "transforms.json")
+    for a, b in zip(tj.views, est.views):
+        np.testing.assert_allclose(a.cam_from_world, b.cam_from_world, atol=1e-9)
+    # undistorted images exist for every registered view and match their cameras
+    for v in est.views:
+        img = cv2.imread(str(out / "images" / v.extra["image_file"]))
+        assert img.shape[:2] == (v.intrinsics.height, v.intrinsics.width)
+    assert _tree_hash(ring16 / "images") == before
+    # a re-run reuses every stage
+    again = run_sfm(ring16 / "images", out, SfMConfig())
+    assert set(again.cached) >= {"features", "matching", "mapping", "undistortion"}
+
+
+@pytest.mark.slow
+def test_sfm_with_given_intrinsics_keeps_them(ring16, tmp_path):
+    ref = read_model(ring16 / "sparse" / "0")
+    K = ref.views[0].intrinsics.K
+    np.savetxt(tmp_path / "K.txt", K)
+    out = tmp_path / "sfmK"
+    assert main(["-q", "sfm", str(ring16 / "images"), "-o", str(out), "--intrinsics", str(tmp_path / "K.txt")]) == 0
+    est = read_model(out / "sparse" / "0")
+    for v in est.views:
+        np.testing.assert_allclose(v.intrinsics.K, K, atol=1e-6)
+    m = pose_metrics(est.views, ref.views)
+    assert m["rot_mean_deg"] < 0.2 and m["center_mean_rel"] < 0.003, m
+
+
+def test_colmap_transforms_colmap_roundtrip_is_exact(blob_small, tmp_path):
+    src = read_colmap_text(blob_small / "sparse" / "0")
+    convert_cameras(blob_small / "sparse" / "0", tmp_path / "t.json")
+    convert_cameras(tmp_path / "t.json", tmp_path / "colmap")
+    back = read_colmap_text(tmp_path / "colmap")
+    assert [v.name for v in back.views] == [v.name for v in src.views]
+    for a, b in zip(src.views, back.views):
+        assert a.intrinsics == b.intrinsics
+        np.testing.assert_allclose(a.cam_from_world, b.cam_from_world, atol=1e-12)
+    # the same through the nerfstudio and instant-ngp world orientations, and binary COLMAP
+    for world in ("nerfstudio", "instant-ngp"):
+        convert_cameras(blob_small / "sparse" / "0", tmp_path / f"{world}.json", world=world)
+        data = json.loads((tmp_path / f"{world}.json").read_text())
+        assert data["photorecon_world"] == world
+        back = read_model(tmp_path / f"{world}.json")
+        for a, b in zip(src.views, back.views):
+            np.testing.assert_allclose(a.cam_from_world, b.cam_from_world, atol=1e-12)
+    convert_cameras(blob_small / "sparse" / "0", tmp_path / "bin", to="colmap-bin")
+    assert (tmp_path / "bin" / "cameras.bin").is_file()
+    binm = read_model(tmp_path / "bin")
+    for a, b in zip(src.views, binm.views):
+        np.testing.assert_allclose(a.cam_from_world, b.cam_from_world, atol=1e-9)
+    assert len(binm.points) == len(src.points)
+
+
+def test_pytorch3d_export(blob_small, tmp_path):
+    from photorecon.cameras import project
+
+    assert main(["-q", "convert", str(blob_small), str(tmp_path / "p3d.json"), "--to", "pytorch3d"]) == 0
+    cams = json.loads((tmp_path / "p3d.json").read_text())["cameras"]
+    model = read_colmap_text(blob_small / "sparse" / "0")
+    v = model.views[0]
+    c = cams[0]
+    R, T, K = np.array(c["R"]), np.array(c["T"]), np.array(c["K_ndc"])
+    X = model.points[:20]
+    h = np.c_[X @ R + T, np.ones(20)] @ K.T
+    ndc = h[:, :2] / h[:, 3:]
+    H, W = c["image_size"]
+    s = min(H, W) / 2
+    uv_p3d = np.c_[W / 2 - ndc[:, 0] * s - 0.5, H / 2 - ndc[:, 1] * s - 0.5]
+    uv, _ = project(X, v.intrinsics, v.cam_from_world)
+    np.testing.assert_allclose(uv_p3d, uv, atol=1e-6)
+
+
+def test_pose_metrics_recovers_similarity():
+    rng = np.random.default_rng(4)
+    ref = []
+    for i in range(10):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.random(random_state=i).as_matrix()
+        T[:3, 3] = rng.normal(size=3)
+        ref.append(View(f"v{i}", None, T))  # intrinsics unused here
+    # estimate = reference in another world: X_est = s R X_ref + t
+    s, Rw, t = 2.5, Rotation.random(random_state=99).as_matrix(), np.array([1.0, -2, 3])
+    est = []
+    for v in ref:
+        C = s * Rw @ v.center + t
+        R_cam = v.cam_from_world[:3, :3] @ Rw.T
+        T = np.eye(4)
+        T[:3, :3] = R_cam
+        T[:3, 3] = -R_cam @ C
+        est.append(View(v.name, None, T))
+    m = pose_metrics(est, ref)
+    assert m["rot_max_deg"] < 1e-5 and m["center_max"] < 1e-9 and m["sim3_scale"] == pytest.approx(1 / s)
+    # a perturbed camera shows up with its error
+    bad = est[3].cam_from_world.copy()
+    C = est[3].center
+    bad[:3, :3] = Rotation.from_rotvec([0, 0, np.radians(2.0)]).as_matrix() @ bad[:3, :3]
+    bad[:3, 3] = -bad[:3, :3] @ C  # same centre, rotated 2 degrees
+    est[3] = View("v3", None, bad)
+    m = pose_metrics(est, ref)
+    assert m["per_image"]["v3"]["rot_deg"] == pytest.approx(2.0, abs=1e-6)
+
+
+def test_ingest_exif_orientation_and_focal(tmp_path):
+    from PIL import Image
+
+    src = tmp_path / "in"
+    src.mkdir()
+    arr = np.zeros((40, 60, 3), np.uint8)
+    arr[:10, :] = 255
+    img = Image.fromarray(arr)
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotate 90 degrees clockwise when displayed
+    exif[0xA405] = 36  # 36 mm equivalent: focal = long side
+    img.save(src / "a.JPG", exif=exif.tobytes())
+    Image.fromarray(arr).save(src / "b.png")
+    (src / "notes.txt").write_text("not an image")
+    (src / "broken.jpg").write_bytes(b"\xff\xd8\xff\xe0 garbage")
+    ing = ingest_folder(src, tmp_path / "work")
+    names = [i.name for i in ing.images]
+    assert names == ["a.JPG", "b.png"]
+    assert sorted(ing.skipped) == ["broken.jpg", "notes.txt"]
+    a = ing.images[0]
+    assert (a.width, a.height) == (40, 60)  # orientation applied
+    assert a.focal_prior_px == pytest.approx(60.0)
+    assert cv2.imread(str(tmp_path / "work" / "a.JPG")).shape[:2] == (60, 40)
+
+
+def _noise_image(path, seed, size=(240, 320)):
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 255, (size[0] // 8, size[1] // 8, 3), dtype=np.uint8)
+    cv2.imwrite(str(path), cv2.resize(small, (size[1], size[0]), interpolation=cv2.INTER_CUBIC))
+
+
+def test_bad_image_folders(tmp_path, blob_small):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(NoImagesError, match="no readable image"):
+        run_sfm(empty, tmp_path / "o1")
+    assert main(["-q", "sfm", str(empty), "-o", str(tmp_path / "o1b")]) == 4
+    others = tmp_path / "others"
+    others.mkdir()
+    (others / "readme.md").write_text("x")
+    (others / "bad.jpg").write_bytes(b"not a jpeg")
+    assert main(["-q", "sfm", str(others), "-o", str(tmp_path / "o2")]) == 4
+    one = tmp_path / "one"
+    one.mkdir()
+    shutil.copy(blob_small / "images" / "view_000.png", one)
+    with pytest.raises(SfMError, match="only one readable image"):
+        run_sfm(one, tmp_path / "o3")
+    same = tmp_path / "same"
+    same.mkdir()
+    for i in range(4):
+        shutil.copy(blob_small / "images" / "view_000.png", same / f"img{i}.png")
+    with pytest.raises(SfMError, match="registered"):
+        run_sfm(same, tmp_path / "o4")
+    apart = tmp_path / "apart"
+    apart.mkdir()
+    for i in range(4):
+        _noise_image(apart / f"n{i}.png", i)
+    before = _tree_hash(apart)
+    assert main(["-q", "sfm", str(apart), "-o", str(tmp_path / "o5")]) == 5
+    assert _tree_hash(apart) == before
+    assert not (tmp_path / "o5" / "sparse" / "0").exists()
