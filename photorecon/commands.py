@@ -199,3 +199,28 @@ def _run_convert(args):
     dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world)
     print(f"convert: {args.src} -> {dst}")
     return 0
+
+
+@command
+def mvs(sub):
+    from .depth.mvs import MVSConfig
+
+    p = sub.add_parser("mvs", help="dense depth by multi-view stereo on the CPU (no weights, no GPU)",
+                       description="Plane-sweep stereo with ZNCC from the dataset's cameras (sparse/0 or "
+                                   "transforms.json) and sparse points; writes depth/NAME.npy, NAME.conf.npy "
+                                   "and NAME.png to DATASET/depth (or -o DIR).")
+    p.add_argument("dataset", help="dataset folder (images/ + sparse/0 or transforms.json)")
+    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
+    add_config_arguments(p, MVSConfig)
+    p.set_defaults(func=_run_mvs)
+
+
+def _run_mvs(args):
+    from .depth.mvs import MVSConfig, run_mvs
+    from .io.dataset import Dataset
+
+    ds = Dataset.open(args.dataset)
+    rep = run_mvs(ds, args.out, config_from_args(MVSConfig, args))
+    where = args.out or f"{args.dataset}/depth"
+    print(f"mvs: depth for {rep['views']} of {len(ds.views)} views ({rep['seconds_per_view']:.2f} s/view) -> {where}")
+    return 0

@@ -1,0 +1,301 @@
+"""Multi-view stereo on the CPU (numpy + OpenCV), no weights and no GPU.
+
+For each reference view:
+
+1. **View selection**: K source views ranked by shared sparse points weighted by their triangulation angle
+   (best near 15 degrees, none below 2), or by camera geometry when the model has no points.
+2. **Depth range** from the sparse points seen in the view (1st-99th percentile, widened 10%).
+3. **Plane sweep** over ``n_depths`` fronto-parallel planes uniform in inverse depth: each source image is
+   warped onto the reference with the plane's homography (``cv2.warpPerspective``); the matching cost is
+   ZNCC over a ``window`` box (box filters), aggregated as the mean of the best ``best_k`` sources
+   (occlusion-robust); winner-take-all, then a parabola through the neighbouring scores for sub-plane depth.
+   Confidence = the aggregated ZNCC of the winner. Work happens at most ``max_size`` pixels wide.
+4. **Filtering**: confidence threshold, then geometric consistency: each depth is re-projected into every
+   source view's depth map and back; it is kept when at least ``min_consistent`` views agree within
+   ``reproj_px`` pixels and ``rel_depth`` relative depth.
+
+Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``depth/NAME.conf.npy``
+(float32 confidence in [0, 1]) and ``depth/NAME.png`` (preview).
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..cameras import View, backproject_depth, camera_center, invert_rigid
+from ..errors import NoDepthError
+from ..io.atomic import atomic_path, atomic_write_json
+from ..io.images import depth_preview, write_image
+from ..progress import bar
+
+log = logging.getLogger("photorecon")
+
+
+@dataclass
+class MVSConfig:
+    """Settings of the multi-view stereo stage (``photorecon mvs``)."""
+
+    n_sources: int = field(default=4, metadata={"help": "source views per reference view"})
+    n_depths: int = field(default=128, metadata={"help": "depth hypotheses (planes, uniform in inverse depth)"})
+    window: int = field(default=7, metadata={"help": "ZNCC window size in pixels (odd)"})
+    best_k: int = field(default=2, metadata={"help": "aggregate the best k source scores per pixel"})
+    max_size: int = field(default=640, metadata={"help": "working resolution: longest image side in pixels"})
+    min_confidence: float = field(default=0.5, metadata={"help": "drop depths whose aggregated ZNCC is below this"})
+    min_consistent: int = field(default=1, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
+    reproj_px: float = field(default=1.0, metadata={"help": "geometric filter: max reprojection error, pixels"})
+    rel_depth: float = field(default=0.01, metadata={"help": "geometric filter: max relative depth difference"})
+    min_angle_deg: float = field(default=2.0, metadata={"help": "view selection: minimum triangulation angle"})
+
+
+@dataclass
+class DepthResult:
+    depth: np.ndarray  # (h, w) float32 at working resolution
+    confidence: np.ndarray  # (h, w) float32 in [0, 1]
+    view: View  # the reference view at working resolution
+    sources: list[str]
+
+
+def _gray(img: np.ndarray) -> np.ndarray:
+    g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+    return g.astype(np.float32) / 255.0
+
+
+def _working_view(view: View, max_size: int) -> View:
+    W, H = view.intrinsics.size
+    s = min(1.0, max_size / max(W, H))
+    if s >= 1.0:
+        return view
+    intr = view.intrinsics.scaled(int(round(W * s)), int(round(H * s)))
+    return View(view.name, intr, view.cam_from_world, view.image_path, dict(view.extra))
+
+
+def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
+    """Rank the other views for ``ref``: shared sparse points weighted by triangulation angle; without
+    points, by viewing-direction similarity and distance."""
+    c_ref = ref.center
+    scores = []
+    ref_pts = model.points_seen_by(ref.name) if len(model.points) else np.zeros((0, 3))
+    ref_ids = set()
+    if ref.name in model.observations:
+        ref_ids = {int(i) for i in model.observations[ref.name][1] if i >= 0}
+    index = {int(p): k for k, p in enumerate(model.point_ids)} if len(model.points) else {}
+    for v in model.views:
+        if v.name == ref.name:
+            continue
+        c = v.center
+        if np.linalg.norm(c - c_ref) < 1e-9:
+            continue
+        if ref_ids and v.name in model.observations:
+            shared = [index[int(i)] for i in model.observations[v.name][1] if i >= 0 and int(i) in ref_ids and int(i) in index]
+            if not shared:
+                continue
+            P = model.points[shared]
+            a, b = P - c_ref, P - c
+            cos = np.einsum("nc,nc->n", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+            ang = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+            w = np.where(ang < cfg.min_angle_deg, 0.0, np.exp(-((ang - 15.0) ** 2) / (2 * 10.0 ** 2)))
+            scores.append((float(w.sum()), v))
+        elif not len(ref_pts):
+            d_ref = ref.cam_from_world[2, :3]
+            d_v = v.cam_from_world[2, :3]
+            ang = np.degrees(np.arccos(np.clip(d_ref @ d_v, -1, 1)))
+            if ang < cfg.min_angle_deg or ang > 60:
+                continue
+            scores.append((float(np.exp(-((ang - 15.0) ** 2) / (2 * 10.0 ** 2))), v))
+    scores.sort(key=lambda s: -s[0])
+    return [v for s, v in scores[: cfg.n_sources] if s > 0]
+
+
+def depth_range(model, view: View) -> tuple[float, float] | None:
+    """Depth range of the sparse points seen in ``view`` (1-99 percentiles widened 10%); None without points."""
+    pts = model.points_seen_by(view.name)
+    if len(pts) < 5:
+        return None
+    z = (pts @ view.cam_from_world[:3, :3].T + view.cam_from_world[:3, 3])[:, 2]
+    z = z[z > 0]
+    if len(z) < 5:
+        return None
+    lo, hi = np.percentile(z, 1), np.percentile(z, 99)
+    lo, hi = lo / 1.1, hi * 1.1
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo * 1.001:
+        return None
+    return float(lo), float(hi)
+
+
+def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, View]], zmin: float, zmax: float,
+                cfg: MVSConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Fronto-parallel plane sweep; returns (depth (h, w), confidence (h, w)) for ``ref``."""
+    H, W = ref_img.shape
+    win = (cfg.window, cfg.window)
+    Kr_inv = np.linalg.inv(ref.intrinsics.K)
+    mu_r = cv2.boxFilter(ref_img, -1, win)
+    var_r = cv2.boxFilter(ref_img * ref_img, -1, win) - mu_r * mu_r
+    inv_depths = np.linspace(1.0 / zmax, 1.0 / zmin, cfg.n_depths)
+    world_from_ref = invert_rigid(ref.cam_from_world)
+    n_src = len(sources)
+    k = min(cfg.best_k, n_src)
+    volume = np.empty((cfg.n_depths, H, W), np.float32)
+    rel = [s.cam_from_world @ world_from_ref for _, s in sources]
+    nvec = np.array([[0.0, 0.0, 1.0]])
+    for i, inv_d in enumerate(inv_depths):
+        top = [np.full((H, W), -1.0, np.float32) for _ in range(k)]  # running best-k, sorted high to low
+        for j, (img, src) in enumerate(sources):
+            R, t = rel[j][:3, :3], rel[j][:3, 3:4]
+            Hm = src.intrinsics.K @ (R + t @ nvec * inv_d) @ Kr_inv
+            warped = cv2.warpPerspective(img, Hm, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+            mu_s = cv2.boxFilter(warped, -1, win)
+            var_s = cv2.boxFilter(warped * warped, -1, win) - mu_s * mu_s
+            cov = cv2.boxFilter(warped * ref_img, -1, win) - mu_r * mu_s
+            zncc = cov / np.sqrt(np.maximum(var_r * var_s, 1e-10))
+            # outside the source image (border -1 inside the window) or textureless: no evidence
+            zncc[(mu_s < -0.01) | (var_s < 1e-5)] = -1.0
+            x = zncc
+            for m in range(k):  # insertion into the sorted best-k
+                hi = np.maximum(top[m], x)
+                x = np.minimum(top[m], x)
+                top[m] = hi
+        volume[i] = sum(top) / k
+    best = volume.argmax(0)
+    rows, cols = np.indices((H, W))
+    s0 = volume[best, rows, cols]
+    lo = np.clip(best - 1, 0, cfg.n_depths - 1)
+    hi = np.clip(best + 1, 0, cfg.n_depths - 1)
+    s_lo, s_hi = volume[lo, rows, cols], volume[hi, rows, cols]
+    denom = s_lo - 2 * s0 + s_hi
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = np.where((denom < -1e-6) & (best > 0) & (best < cfg.n_depths - 1), 0.5 * (s_lo - s_hi) / denom, 0.0)
+    off = np.clip(off, -0.5, 0.5)
+    step = inv_depths[1] - inv_depths[0] if cfg.n_depths > 1 else 0.0
+    inv = inv_depths[best] + off * step
+    depth = (1.0 / inv).astype(np.float32)
+    conf = np.clip(s0, 0, 1).astype(np.float32)
+    # the extreme planes are not minima but limits of the search
+    edge = (best == 0) | (best == cfg.n_depths - 1)
+    conf[edge | (var_r < 1e-5)] = 0  # a textureless reference window has no evidence
+    return depth, conf
+
+
+def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig) -> dict[str, np.ndarray]:
+    """Keep depths that at least ``min_consistent`` other views confirm (reprojection within ``reproj_px``
+    and relative depth within ``rel_depth``); returns the per-view count of agreeing views."""
+    counts = {}
+    for name, r in results.items():
+        d = r.depth
+        valid = d > 0
+        cnt = np.zeros(d.shape, np.int32)
+        pts, uv = backproject_depth(np.where(valid, d, 0), r.view.intrinsics, r.view.cam_from_world, return_pixels=True)
+        for sname in r.sources:
+            s = results.get(sname)
+            if s is None or not len(pts):
+                continue
+            Ts = s.view.cam_from_world
+            ps = pts @ Ts[:3, :3].T + Ts[:3, 3]
+            z = ps[:, 2]
+            intr = s.view.intrinsics
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = intr.fx * ps[:, 0] / z + intr.cx
+                v = intr.fy * ps[:, 1] / z + intr.cy
+            ui, vi = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
+            ok = (z > 0) & (ui >= 0) & (ui < intr.width) & (vi >= 0) & (vi < intr.height)
+            ds = np.zeros(len(pts), np.float32)
+            ds[ok] = s.depth[vi[ok], ui[ok]]
+            ok &= ds > 0
+            # back from the source: its depth at (u, v) -> world -> reference pixel
+            xs = np.stack([(ui - intr.cx) / intr.fx * ds, (vi - intr.cy) / intr.fy * ds, ds], 1)[ok]
+            wfs = invert_rigid(Ts)
+            pw = xs @ wfs[:3, :3].T + wfs[:3, 3]
+            pr = pw @ r.view.cam_from_world[:3, :3].T + r.view.cam_from_world[:3, 3]
+            ri = r.view.intrinsics
+            ur = ri.fx * pr[:, 0] / pr[:, 2] + ri.cx
+            vr = ri.fy * pr[:, 1] / pr[:, 2] + ri.cy
+            err = np.hypot(ur - uv[ok, 0], vr - uv[ok, 1])
+            dz = np.abs(pr[:, 2] - d[valid][ok]) / d[valid][ok]
+            agree = np.zeros(len(pts), bool)
+            agree[np.flatnonzero(ok)] = (err < cfg.reproj_px) & (dz < cfg.rel_depth)
+            c = np.zeros(len(pts), np.int32)
+            c[agree] = 1
+            cnt[valid] += c
+        counts[name] = cnt
+    return counts
+
+
+def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None) -> dict:
+    """MVS for every view of a ``Dataset``; writes depth maps (camera resolution), confidences and previews
+    to ``out_dir`` (default: DATASET/depth). Returns a report dict. Raises ``NoDepthError`` if no view
+    yields depth."""
+    cfg = cfg or MVSConfig()
+    model = dataset.model
+    out = Path(out_dir) if out_dir else dataset.root / "depth"
+    out.mkdir(parents=True, exist_ok=True)
+    grey: dict[str, np.ndarray] = {}
+    work: dict[str, View] = {}
+
+    def image(v: View):
+        if v.name not in grey:
+            wv = _working_view(v, cfg.max_size)
+            g = _gray(dataset.image(v))
+            if g.shape != (wv.intrinsics.height, wv.intrinsics.width):
+                g = cv2.resize(g, wv.intrinsics.size, interpolation=cv2.INTER_AREA)
+            grey[v.name], work[v.name] = g, wv
+        return grey[v.name], work[v.name]
+
+    results: dict[str, DepthResult] = {}
+    skipped: dict[str, str] = {}
+    t0 = time.perf_counter()
+    for v in bar(model.views, desc="mvs depth"):
+        rng = depth_range(model, v)
+        if rng is None:
+            skipped[v.name] = "no sparse points (or a degenerate depth range) in this view"
+            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
+            continue
+        srcs = select_sources(model, v, cfg)
+        if not srcs:
+            skipped[v.name] = "no source view with enough shared points and baseline"
+            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
+            continue
+        ref_img, ref_w = image(v)
+        src = [image(s) for s in srcs]
+        depth, conf = plane_sweep(ref_img, ref_w, src, rng[0], rng[1], cfg)
+        depth[conf < cfg.min_confidence] = 0
+        results[v.name] = DepthResult(depth, conf, ref_w, [s.name for s in srcs])
+    t_sweep = time.perf_counter() - t0
+    if not results:
+        raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    if cfg.min_consistent > 0:
+        counts = geometric_filter(results, cfg)
+        for name, r in results.items():
+            r.depth[counts[name] < cfg.min_consistent] = 0
+    written = 0
+    stats = {}
+    for v in model.views:
+        r = results.get(v.name)
+        if r is None:
+            continue
+        W, H = v.intrinsics.size
+        d, c = r.depth, np.where(r.depth > 0, r.confidence, 0).astype(np.float32)
+        if d.shape != (H, W):
+            d = cv2.resize(d, (W, H), interpolation=cv2.INTER_NEAREST)
+            c = cv2.resize(c, (W, H), interpolation=cv2.INTER_NEAREST)
+        if not np.count_nonzero(d):
+            log.warning("mvs: view %s: no depth survived filtering", v.name)
+            skipped[v.name] = "no depth survived filtering"
+            continue
+        with atomic_path(out / f"{v.name}.npy") as tmp:
+            np.save(tmp, d.astype(np.float32))
+        with atomic_path(out / f"{v.name}.conf.npy") as tmp:
+            np.save(tmp, c)
+        write_image(out / f"{v.name}.png", depth_preview(d))
+        stats[v.name] = {"valid_fraction": float((d > 0).mean()), "sources": r.sources}
+        written += 1
+    if not written:
+        raise NoDepthError("mvs: no depth survived filtering in any view")
+    report = {"views": written, "skipped": skipped, "sweep_seconds": t_sweep,
+              "seconds_per_view": t_sweep / max(len(results), 1), "per_view": stats}
+    atomic_write_json(out / "mvs_report.json", report)
+    return report

@@ -1,0 +1,73 @@
+"""Multi-view stereo on the CPU against rendered ground-truth depth."""
+import numpy as np
+import pytest
+import trimesh
+
+from photorecon.cli import main
+from photorecon.depth.mvs import MVSConfig, run_mvs
+from photorecon.errors import NoDepthError
+from photorecon.fusion import FusionConfig, fuse, load_frames
+from photorecon.io.colmap_text import SparseModel
+from photorecon.io.dataset import Dataset
+from photorecon.mesh import clean
+from photorecon.metrics import depth_metrics, mesh_metrics
+
+CFG = MVSConfig(n_depths=96)
+
+
+@pytest.fixture(scope="module")
+def mvs_depth(blob_fusion, tmp_path_factory):
+    out = tmp_path_factory.mktemp("mvs_depth")
+    ds = Dataset.open(blob_fusion)
+    rep = run_mvs(ds, out, CFG)
+    return ds, out, rep
+
+
+@pytest.mark.slow
+def test_mvs_depth_accuracy_and_coverage(mvs_depth, blob_fusion):
+    ds, out, rep = mvs_depth
+    assert rep["views"] == len(ds.views)
+    within, cover = [], []
+    for v in ds.views:
+        d = np.load(out / f"{v.name}.npy")
+        conf = np.load(out / f"{v.name}.conf.npy")
+        assert d.shape == (v.intrinsics.height, v.intrinsics.width)
+        assert ((conf > 0) == (d > 0)).all() and conf.max() <= 1
+        assert (out / f"{v.name}.png").is_file()
+        m = depth_metrics(d, np.load(blob_fusion / "depth" / f"{v.name}.npy"))
+        within.append(m["within"])
+        cover.append(m["coverage"])
+    # at 320x240 and 24 views (the benchmark measures 640x480, 40 views)
+    assert np.mean(within) >= 0.9, np.mean(within)
+    assert np.mean(cover) >= 0.5, np.mean(cover)
+
+
+@pytest.mark.slow
+def test_mvs_depth_fuses_to_the_surface(mvs_depth, blob_fusion):
+    ds, out, _ = mvs_depth
+    ds2 = Dataset.open(blob_fusion, depth_dir=out)
+    mesh = clean(fuse(load_frames(ds2, FusionConfig()), FusionConfig(trunc_voxels=4), ds2.model.points))
+    gt = trimesh.load(blob_fusion / "gt_mesh.ply", process=False)
+    m = mesh_metrics(mesh, gt, n_samples=30_000)
+    assert m.fscore >= 0.9, m
+
+
+def test_mvs_skips_views_without_points(blob_small, tmp_path, caplog):
+    ds = Dataset.open(blob_small)
+    # drop every observation of one view: it has no sparse points
+    name = ds.views[0].name
+    uv, ids = ds.model.observations[name]
+    ds.model.observations[name] = (uv[:0], ids[:0])
+    rep = run_mvs(ds, tmp_path / "d", MVSConfig(n_depths=32, min_consistent=1))
+    assert name in rep["skipped"] and "no sparse points" in rep["skipped"][name]
+    assert not (tmp_path / "d" / f"{name}.npy").exists()
+    assert any(name in r.getMessage() for r in caplog.records)
+    # no points anywhere -> one clear failure
+    empty = Dataset(ds.root, SparseModel(ds.views), ds.depth_dir)
+    with pytest.raises(NoDepthError, match="no view yielded depth"):
+        run_mvs(empty, tmp_path / "e", MVSConfig(n_depths=16))
+
+
+def test_cli_mvs(blob_small, tmp_path):
+    assert main(["-q", "mvs", str(blob_small), "-o", str(tmp_path / "d"), "--n-depths", "32", "--min-consistent", "1"]) == 0
+    assert len(list((tmp_path / "d").glob("*.conf.npy"))) >= 6
