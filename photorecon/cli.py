@@ -80,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     _load_commands()
     for add in COMMANDS.values():
         add(sub)
+    for sp in sub.choices.values():  # -q / -v also after the sub-command
+        sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="only errors; no progress bars")
+        sp.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug messages")
     return parser
 
 

@@ -224,3 +224,75 @@ def _run_mvs(args):
     where = args.out or f"{args.dataset}/depth"
     print(f"mvs: depth for {rep['views']} of {len(ds.views)} views ({rep['seconds_per_view']:.2f} s/view) -> {where}")
     return 0
+
+
+def _add_stage_args(p):
+    from .depth.mvs import MVSConfig
+    from .fusion import FusionConfig
+    from .mesh import CleanConfig
+    from .pipeline import ReconstructConfig
+    from .sfm import SfMConfig
+
+    add_config_arguments(p.add_argument_group("pipeline"), ReconstructConfig)
+    add_config_arguments(p.add_argument_group("structure from motion"), SfMConfig)
+    add_config_arguments(p.add_argument_group("multi-view stereo"), MVSConfig)
+    g = p.add_argument_group("fusion")
+    add_config_arguments(g, FusionConfig)
+    g.set_defaults(trunc_voxels=3.0)
+    add_config_arguments(p.add_argument_group("cleaning"), CleanConfig)
+
+
+@command
+def reconstruct(sub):
+    p = sub.add_parser("reconstruct", help="image folder -> poses, depth and one fused mesh",
+                       description="Ingest -> poses (SfM, or --poses) -> undistort -> depth (MVS, --depth-model, or "
+                                   "--depth DIR) -> fusion (TSDF or grid) -> cleaning -> export, preview and report. "
+                                   "A re-run resumes from the last complete stage.")
+    p.add_argument("images", help="image folder (never written to)")
+    _out_args(p)
+    p.add_argument("--force", action="store_true", help="recompute every stage")
+    _add_stage_args(p)
+    p.set_defaults(func=_run_reconstruct)
+
+
+def _run_reconstruct(args):
+    from .depth.mvs import MVSConfig
+    from .fusion import FusionConfig
+    from .mesh import CleanConfig
+    from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
+    from .sfm import SfMConfig
+
+    cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
+                        config_from_args(MVSConfig, args), config_from_args(FusionConfig, args),
+                        config_from_args(CleanConfig, args))
+    rep = run(args.images, args.out, cfgs, force=args.force, overwrite=args.overwrite)
+    p, d, m = rep["poses"], rep["depth"], rep["mesh"]
+    print(f"reconstruct: {p.get('registered')} images registered, {d.get('views')} depth maps ({d.get('source')}), "
+          f"mesh {m.get('vertices')} vertices / {m.get('faces')} faces")
+    print(f"  files: {args.out}/mesh.ply, preview.png, report.html, report.json")
+    if rep["warnings"]:
+        print(f"  {len(rep['warnings'])} warning(s); see report.json")
+    return 0
+
+
+@command
+def demo(sub):
+    from .demo import DemoConfig
+
+    p = sub.add_parser("demo", help="the built-in demo: synthesize a scene, reconstruct it, measure it",
+                       description="Renders a textured scene, reconstructs it from its images alone (SfM + MVS + "
+                                   "TSDF) and prints accuracy against the ground truth.")
+    p.add_argument("-o", "--out", default="photorecon_demo", help="output folder (default: ./photorecon_demo)")
+    p.add_argument("--overwrite", action="store_true", help="allow a non-empty folder not made by photorecon")
+    add_config_arguments(p, DemoConfig)
+    p.set_defaults(func=_run_demo)
+
+
+def _run_demo(args):
+    from pathlib import Path
+
+    from .demo import DemoConfig, print_summary, run_demo
+
+    s = run_demo(args.out, config_from_args(DemoConfig, args), overwrite=args.overwrite)
+    print_summary(s, Path(args.out))
+    return 0

@@ -42,7 +42,7 @@ class FusionConfig:
     weight_threshold: float = field(default=1.0, metadata={"help": "min. integrated weight (views) of an extracted voxel"})
     depth_min: float = field(default=0.0, metadata={"help": "ignore depth below this (scene units)"})
     depth_max: float | None = field(default=None, metadata={"help": "ignore depth beyond this (default: no limit)"})
-    min_confidence: float = field(default=0.0, metadata={"help": "ignore depth whose confidence map is below this"})
+    conf_threshold: float = field(default=0.0, metadata={"help": "ignore depth whose confidence (NAME.conf.npy) is below this"})
     use_masks: bool = field(default=True, metadata={"help": "apply masks/NAME.png when present"})
     max_stretch: float = field(default=8.0, metadata={"help": "grid: reject triangles whose edge exceeds this many pixel footprints"})
     memory_limit_gb: float | None = field(default=None, metadata={"help": "refuse a voxel grid above this size (default: 60%% of free memory)"})
@@ -74,8 +74,8 @@ def prepare_depth(view: View, depth: np.ndarray, cfg: FusionConfig, mask: np.nda
         d[d < cfg.depth_min] = 0
     if cfg.depth_max:
         d[d > cfg.depth_max] = 0
-    if confidence is not None and cfg.min_confidence > 0:
-        d[confidence < cfg.min_confidence] = 0
+    if confidence is not None and cfg.conf_threshold > 0:
+        d[confidence < cfg.conf_threshold] = 0
     return d
 
 

@@ -178,19 +178,32 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[
     return s, R, mu_d - s * R @ mu_s
 
 
-def pose_metrics(estimate: list, reference: list) -> dict:
-    """Compare estimated cameras with reference cameras (``View`` lists, matched by name): Sim3 (Umeyama)
-    alignment of the camera centres, then per-image rotation error (degrees) and centre error (absolute,
-    in reference units, and relative to the reference cameras' spread = RMS distance of the reference
-    centres from their centroid)."""
+def _pairs(estimate: list, reference: list) -> list:
     ref = {v.name: v for v in reference}
     pairs = [(e, ref[e.name]) for e in estimate if e.name in ref]
     if len(pairs) < 3:
         raise BadArgumentError(f"pose metrics: {len(pairs)} images in common between estimate and reference; "
                                "need at least 3 (names must match)")
+    return pairs
+
+
+def align_cameras(estimate: list, reference: list) -> tuple[float, np.ndarray, np.ndarray]:
+    """Sim3 (s, R, t) taking the estimate's world to the reference's: Umeyama on the camera centres of the
+    views (``View`` lists) that share a name. ``X_ref = s * R @ X_est + t``."""
+    pairs = _pairs(estimate, reference)
+    return umeyama(np.array([e.center for e, _ in pairs]), np.array([r.center for _, r in pairs]))
+
+
+def pose_metrics(estimate: list, reference: list) -> dict:
+    """Compare estimated cameras with reference cameras (``View`` lists, matched by name): Sim3 (Umeyama)
+    alignment of the camera centres, then per-image rotation error (degrees) and centre error (absolute,
+    in reference units, and relative to the reference cameras' spread = RMS distance of the reference
+    centres from their centroid)."""
+    pairs = _pairs(estimate, reference)
+    ref = {v.name: v for v in reference}
+    s, R, t = align_cameras(estimate, reference)
     ce = np.array([e.center for e, _ in pairs])
     cr = np.array([r.center for _, r in pairs])
-    s, R, t = umeyama(ce, cr)
     c_al = s * ce @ R.T + t
     cerr = np.linalg.norm(c_al - cr, axis=1)
     rerr = []

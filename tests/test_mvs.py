@@ -62,10 +62,15 @@ def test_mvs_skips_views_without_points(blob_small, tmp_path, caplog):
     assert name in rep["skipped"] and "no sparse points" in rep["skipped"][name]
     assert not (tmp_path / "d" / f"{name}.npy").exists()
     assert any(name in r.getMessage() for r in caplog.records)
-    # no points anywhere -> one clear failure
-    empty = Dataset(ds.root, SparseModel(ds.views), ds.depth_dir)
+    # no view sees a point -> one clear failure
+    m = ds.model
+    unseen = Dataset(ds.root, SparseModel(ds.views, m.points, m.colors, m.point_ids, m.errors, {}), ds.depth_dir)
     with pytest.raises(NoDepthError, match="no view yielded depth"):
-        run_mvs(empty, tmp_path / "e", MVSConfig(n_depths=16))
+        run_mvs(unseen, tmp_path / "e", MVSConfig(n_depths=16))
+    # a model without any sparse point (transforms.json): depth ranges come from the cameras
+    bare = Dataset(ds.root, SparseModel(ds.views), ds.depth_dir)
+    rep = run_mvs(bare, tmp_path / "f", MVSConfig(n_depths=32))
+    assert rep["views"] >= len(ds.views) // 2
 
 
 def test_cli_mvs(blob_small, tmp_path):

@@ -127,6 +127,27 @@ def depth_range(model, view: View) -> tuple[float, float] | None:
     return float(lo), float(hi)
 
 
+def camera_depth_range(views: list[View], view: View) -> tuple[float, float] | None:
+    """Without sparse points: the point nearest to every optical axis is taken as the scene centre, and the
+    depth range is [0.4, 1.6] x its depth in ``view`` (cameras looking at a common object)."""
+    if len(views) < 2:
+        return None
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for v in views:
+        d = v.cam_from_world[2, :3]
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ v.center
+    try:
+        c = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return None
+    z = (view.cam_from_world[:3, :3] @ c + view.cam_from_world[:3, 3])[2]
+    if not z > 0:
+        return None
+    return 0.4 * float(z), 1.6 * float(z)
+
+
 def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, View]], zmin: float, zmax: float,
                 cfg: MVSConfig) -> tuple[np.ndarray, np.ndarray]:
     """Fronto-parallel plane sweep; returns (depth (h, w), confidence (h, w)) for ``ref``."""
@@ -248,8 +269,11 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     results: dict[str, DepthResult] = {}
     skipped: dict[str, str] = {}
     t0 = time.perf_counter()
+    no_points = len(model.points) == 0
+    if no_points:
+        log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
     for v in bar(model.views, desc="mvs depth"):
-        rng = depth_range(model, v)
+        rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v)
         if rng is None:
             skipped[v.name] = "no sparse points (or a degenerate depth range) in this view"
             log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])

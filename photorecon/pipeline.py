@@ -1,0 +1,322 @@
+"""``reconstruct()``: an image folder -> poses -> depth -> fused mesh -> report, composed from the stage modules.
+
+OUT layout::
+
+    OUT/images/            undistorted images the depth stage used
+    OUT/sparse/0/          COLMAP text model (pinhole cameras, sparse points)
+    OUT/transforms.json    the same cameras, NeRF convention
+    OUT/depth/             NAME.npy (+ NAME.conf.npy) and NAME.png previews
+    OUT/mesh.ply, mesh.glb the cleaned, fused mesh
+    OUT/preview.png        the mesh from four viewpoints with the camera frusta
+    OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
+    OUT/report.html        a self-contained page with the previews, depth maps and numbers
+    OUT/colmap/            SfM working files (database, distorted model), cached
+    OUT/.stages/           one marker per completed stage (with its parameters); a re-run skips a stage
+                           whose marker matches, unless force=True
+
+Every file is written atomically and a stage's marker only after all its outputs, so an interrupted run
+leaves nothing a later run mistakes for complete. The input folder is never written to.
+"""
+from __future__ import annotations
+
+import base64
+import hashlib
+import html
+import json
+import logging
+import platform
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from . import __version__
+from .depth.mvs import MVSConfig
+from .errors import BadArgumentError, InputDataError, NoDepthError
+from .fusion import FusionConfig
+from .io.atomic import atomic_write_json, atomic_write_text
+from .mesh import CleanConfig
+from .resources import measure
+from .sfm import SfMConfig
+
+log = logging.getLogger("photorecon")
+
+
+@dataclass
+class ReconstructConfig:
+    """Top-level settings of ``photorecon reconstruct``."""
+
+    poses: str | None = field(default=None, metadata={"help": "use these cameras (COLMAP model folder or transforms.json) instead of SfM"})
+    depth: str = field(default="mvs", metadata={"help": "depth source: 'mvs' (default), or a folder of NAME.npy depth maps (e.g. a synth dataset's depth/)"})
+    depth_model: str | None = field(default=None, metadata={"help": "monocular depth from this ONNX model (MiDaS-style), aligned to the SfM points"})
+    depth_preset: str | None = field(default=None, metadata={"help": "preset for --depth-model (see 'photorecon depth --help')"})
+    formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write (ply, obj, glb)"})
+
+
+@dataclass
+class StageConfigs:
+    run: ReconstructConfig = field(default_factory=ReconstructConfig)
+    sfm: SfMConfig = field(default_factory=SfMConfig)
+    mvs: MVSConfig = field(default_factory=MVSConfig)
+    fusion: FusionConfig = field(default_factory=lambda: FusionConfig(trunc_voxels=3.0))
+    clean: CleanConfig = field(default_factory=CleanConfig)
+
+
+class _Stages:
+    """Completion markers in OUT/.stages: NAME.json holds the stage's parameter hash."""
+
+    def __init__(self, out: Path, force: bool):
+        self.dir = out / ".stages"
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.force = force
+        self.invalidated = False
+
+    def key(self, params) -> str:
+        return hashlib.sha256(json.dumps(params, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+    def done(self, name: str, params) -> bool:
+        p = self.dir / f"{name}.json"
+        if self.force or self.invalidated or not p.is_file():
+            self.invalidated = True  # every later stage must run again too
+            return False
+        try:
+            ok = json.loads(p.read_text()).get("key") == self.key(params)
+        except (OSError, json.JSONDecodeError):
+            ok = False
+        if not ok:
+            self.invalidated = True
+        return ok
+
+    def mark(self, name: str, params, info: dict | None = None) -> None:
+        atomic_write_json(self.dir / f"{name}.json", {"key": self.key(params), "info": info or {}})
+
+    def info(self, name: str) -> dict:
+        try:
+            return json.loads((self.dir / f"{name}.json").read_text()).get("info", {})
+        except (OSError, json.JSONDecodeError):
+            return {}
+
+
+def _undistort_given(model, images_dir: Path, out: Path):
+    """Given cameras: copy (and, for distorted cameras, undistort with OpenCV) the images into OUT/images."""
+    from .cameras import View
+    from .io.colmap_text import SparseModel
+    from .io.images import read_image, write_image
+
+    img_out = out / "images"
+    img_out.mkdir(parents=True, exist_ok=True)
+    views = []
+    for v in model.views:
+        name = v.extra.get("image_file", v.name)
+        src = images_dir / name
+        if not src.is_file():
+            cands = [p for p in images_dir.glob(v.name + ".*")]
+            if not cands:
+                raise InputDataError(f"view {v.name}: image {name} not found in {images_dir}")
+            src = cands[0]
+        img = read_image(src)
+        if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
+            raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
+                                 f"{v.intrinsics.width}x{v.intrinsics.height}")
+        intr = v.intrinsics
+        if intr.has_distortion:
+            dist = np.array([intr.k1, intr.k2, intr.p1, intr.p2])
+            img = cv2.undistort(img, intr.K, dist, None, intr.K)
+            intr = intr.pinhole()
+        dst_name = Path(src.name).stem + ".png"
+        write_image(img_out / dst_name, img)
+        views.append(View(v.name, intr, v.cam_from_world, extra={"image_file": dst_name}))
+    return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
+
+
+def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
+                overwrite: bool = False) -> dict:
+    """Run the whole pipeline; returns the report (also written to OUT/report.json)."""
+    from .depth.mvs import run_mvs
+    from .fusion import fuse, load_frames
+    from .io.colmap_text import write_colmap_text
+    from .io.dataset import Dataset, read_model
+    from .io.nerf import write_transforms
+    from .io.output import prepare_output
+    from .mesh import clean, export
+    from .preview import render_preview
+    from .sfm import run_sfm
+
+    cfgs = cfgs or StageConfigs()
+    run = cfgs.run
+    images = Path(images)
+    if not images.is_dir():
+        from .errors import NoImagesError
+
+        raise NoImagesError(f"{images}: no such image folder")
+    formats = tuple(f.strip().lower() for f in run.formats.split(",") if f.strip())
+    if not formats or any(f not in ("ply", "obj", "glb") for f in formats):
+        raise BadArgumentError(f"--formats: expected ply, obj and/or glb, got {run.formats!r}")
+    if run.depth != "mvs" and not Path(run.depth).is_dir():
+        raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
+    if run.depth_model and not Path(run.depth_model).is_file():
+        raise BadArgumentError(f"--depth-model: {run.depth_model}: no such file")
+    out = prepare_output(out, overwrite, inputs=(images,) + ((run.depth,) if run.depth != "mvs" else ()))
+    stages = _Stages(out, force)
+    stats: dict = {}
+    warnings: list[str] = []
+    handler = _WarningCollector(warnings)
+    log.addHandler(handler)
+    try:
+        # 1. poses
+        pose_params = {"images": str(images.resolve()), "poses": run.poses, "sfm": asdict(cfgs.sfm)}
+        if not stages.done("poses", pose_params):
+            with measure(stats, "poses"):
+                if run.poses:
+                    model = _undistort_given(read_model(run.poses), images, out)
+                    write_colmap_text(model, out / "sparse" / "0")
+                    write_transforms(model.views, out / "transforms.json")
+                    info = {"source": run.poses, "registered": len(model.views), "unregistered": []}
+                else:
+                    res = run_sfm(images, out, cfgs.sfm, force=force)
+                    info = {"source": "sfm", "registered": len(res.registered), "unregistered": res.unregistered,
+                            "sfm_seconds": res.seconds}
+            stages.mark("poses", pose_params, info)
+            log.info("poses: %d images registered", info["registered"])
+        else:
+            stats["poses"] = {"seconds": 0.0, "cached": True}
+        ds = Dataset.open(out)
+
+        # 2. depth
+        depth_params = {"depth": run.depth, "model": run.depth_model, "preset": run.depth_preset,
+                        "mvs": asdict(cfgs.mvs)}
+        if not stages.done("depth", depth_params):
+            tmp_depth = out / ".depth.partial"
+            shutil.rmtree(tmp_depth, ignore_errors=True)
+            with measure(stats, "depth"):
+                if run.depth_model:
+                    from .depth.mono import MonoConfig, run_mono
+
+                    rep = run_mono(ds, run.depth_model, tmp_depth, MonoConfig(preset=run.depth_preset))
+                    info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
+                elif run.depth == "mvs":
+                    rep = run_mvs(ds, tmp_depth, cfgs.mvs)
+                    info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
+                            "seconds_per_view": rep["seconds_per_view"]}
+                else:
+                    n = _copy_depth(Path(run.depth), ds, tmp_depth)
+                    info = {"source": str(run.depth), "views": n}
+            shutil.rmtree(out / "depth", ignore_errors=True)
+            tmp_depth.rename(out / "depth")
+            stages.mark("depth", depth_params, info)
+            log.info("depth: %d depth maps (%s)", info["views"], info["source"])
+        else:
+            stats["depth"] = {"seconds": 0.0, "cached": True}
+
+        # 3. fusion + cleaning + export
+        fuse_params = {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats}
+        if not stages.done("mesh", fuse_params):
+            with measure(stats, "fusion"):
+                frames = load_frames(ds, cfgs.fusion)
+                mesh = fuse(frames, cfgs.fusion, ds.model.points)
+                mesh = clean(mesh, cfgs.clean)
+                for fmt in formats:
+                    export(mesh, out / f"mesh.{fmt}")
+            with measure(stats, "preview"):
+                render_preview(mesh, out / "preview.png", cameras=ds.views)
+            stages.mark("mesh", fuse_params, {"vertices": len(mesh.vertices), "faces": len(mesh.faces),
+                                              "depth_maps_fused": len(frames)})
+            log.info("mesh: %d vertices, %d faces", len(mesh.vertices), len(mesh.faces))
+        else:
+            stats["fusion"] = {"seconds": 0.0, "cached": True}
+    finally:
+        log.removeHandler(handler)
+    report = {
+        "photorecon": __version__, "python": platform.python_version(), "versions": _versions(),
+        "input": str(images), "output": str(out),
+        "parameters": {k: asdict(v) for k, v in asdict_shallow(cfgs).items()},
+        "stages": stats, "poses": stages.info("poses"), "depth": stages.info("depth"), "mesh": stages.info("mesh"),
+        "warnings": warnings,
+    }
+    atomic_write_json(out / "report.json", report)
+    write_html_report(out, report)
+    return report
+
+
+def asdict_shallow(cfgs: StageConfigs) -> dict:
+    return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean}
+
+
+class _WarningCollector(logging.Handler):
+    def __init__(self, sink: list):
+        super().__init__(logging.WARNING)
+        self.sink = sink
+
+    def emit(self, record):
+        self.sink.append(record.getMessage())
+
+
+def _copy_depth(src: Path, ds, dst: Path) -> int:
+    """Copy NAME.npy depth maps (and confidences, previews) for the dataset's views; validate each."""
+    from .io.images import read_depth
+
+    dst.mkdir(parents=True, exist_ok=True)
+    n = 0
+    for v in ds.views:
+        p = src / f"{v.name}.npy"
+        if not p.is_file():
+            log.warning("view %s: no depth map %s; skipped", v.name, p)
+            continue
+        read_depth(p, (v.intrinsics.height, v.intrinsics.width), v.name)
+        shutil.copyfile(p, dst / p.name)
+        for extra in (f"{v.name}.conf.npy", f"{v.name}.png"):
+            if (src / extra).is_file():
+                shutil.copyfile(src / extra, dst / extra)
+        n += 1
+    if not n:
+        raise NoDepthError(f"{src}: no depth map matches the cameras' image names")
+    return n
+
+
+def _versions() -> dict:
+    out = {}
+    for mod in ("numpy", "cv2", "open3d", "pycolmap", "trimesh", "onnxruntime", "scipy"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:  # a missing optional module is reported as such
+            out[mod] = None
+    return out
+
+
+def _img_tag(path: Path, width: int | None = None) -> str:
+    if not path.is_file():
+        return ""
+    data = base64.b64encode(path.read_bytes()).decode()
+    w = f' width="{width}"' if width else ""
+    return f'<img src="data:image/png;base64,{data}"{w} alt="{html.escape(path.name)}">'
+
+
+def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -> Path:
+    """A self-contained report.html (images embedded as data URIs; opens with no server)."""
+    rows = []
+    for stage, s in report.get("stages", {}).items():
+        rows.append(f"<tr><td>{html.escape(stage)}</td><td>{s.get('seconds', 0):.2f}</td>"
+                    f"<td>{s.get('peak_mb', '')}</td><td>{'cached' if s.get('cached') else ''}</td></tr>")
+    facts = {"registered images": report.get("poses", {}).get("registered"),
+             "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
+             "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
+             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces")}
+    facts.update(extra_rows or {})
+    fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
+    depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""
+    warn = "".join(f"<li>{html.escape(w)}</li>" for w in report.get("warnings", [])) or "<li>none</li>"
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>photorecon report</title>
+<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}img{{margin:2px}}</style>
+</head><body><h1>photorecon report</h1>
+<p>photorecon {html.escape(str(report.get('photorecon')))} &middot; input {html.escape(str(report.get('input')))}</p>
+<h2>Mesh</h2>{_img_tag(out / 'preview.png')}
+<h2>Summary</h2><table>{fact_rows}</table>
+<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak MB</th><th></th></tr>{''.join(rows)}</table>
+<h2>Depth maps</h2><div>{depth_imgs}</div>
+<h2>Warnings</h2><ul>{warn}</ul>
+<h2>Parameters</h2><pre>{html.escape(json.dumps(report.get('parameters', {}), indent=1))}</pre>
+</body></html>"""
+    return atomic_write_text(out / "report.html", page)
