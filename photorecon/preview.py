@@ -14,10 +14,12 @@ from .io.images import write_image
 def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
                    extra_points: np.ndarray | None = None) -> list[View]:
     lo, hi = mesh.bounds
-    if extra_points is not None and len(extra_points):
-        lo, hi = np.minimum(lo, extra_points.min(0)), np.maximum(hi, extra_points.max(0))
     center = (lo + hi) / 2
-    radius = float(np.linalg.norm(hi - lo)) * 1.1
+    pts = np.asarray(mesh.vertices)
+    if extra_points is not None and len(extra_points):
+        pts = np.vstack([pts, extra_points])
+    # distance at which the bounding sphere (about the mesh's centre) fills the 55-degree view
+    radius = float(np.linalg.norm(pts - center, axis=1).max()) / np.sin(np.radians(55.0 / 2)) * 1.02
     az = np.radians(np.linspace(30, 390, n, endpoint=False))
     el = np.radians(25.0)
     up = np.asarray(up, float)
@@ -44,14 +46,19 @@ def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] 
             if np.linalg.norm(ups) > 0.3:
                 up = tuple(ups / np.linalg.norm(ups))
     has_colors = mesh.visual.kind == "vertex" and np.asarray(mesh.visual.vertex_colors)[:, :3].std() > 1
-    r = Renderer(mesh, plain=not has_colors, background_color=(1.0, 1.0, 1.0))
+    r = Renderer(mesh, plain=not has_colors, background_color=(1.0, 1.0, 1.0), soft_light=has_colors)
     tiles = []
     diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
     centers = np.array([c.center for c in cameras]) if cameras else None
-    for v in _preview_views(mesh, n, size, up, centers):
+    # the first tiles frame the mesh alone; the rest also the cameras, drawn as frusta
+    n_cam = n // 2 if cameras else 0
+    close = _preview_views(mesh, n, size, up)[: n - n_cam]
+    wide = _preview_views(mesh, n, size, up, centers)[n - n_cam:] if n_cam else []
+    for k, v in enumerate(close + wide):
         img = r.render(v).rgb.copy()
-        for cam in cameras or []:
-            _draw_frustum(img, v, cam, 0.06 * diag)
+        if k >= len(close):
+            for cam in cameras or []:
+                _draw_frustum(img, v, cam, 0.06 * diag)
         tiles.append(img)
     grid = np.concatenate(tiles, axis=1)
     return write_image(path, grid)

@@ -259,7 +259,8 @@ class Renderer:
     """Ray-casts one mesh; ``render(view)`` gives RGB, z-depth, mask, triangle ids and normals."""
 
     def __init__(self, mesh: trimesh.Trimesh, seed: int = 0, background: str = "color",
-                 background_color=(0.08, 0.08, 0.1), backdrop_radius: float = 8.0, plain: bool = False):
+                 background_color=(0.08, 0.08, 0.1), backdrop_radius: float = 8.0, plain: bool = False,
+                 soft_light: bool = False):
         import open3d as o3d
 
         self.mesh = mesh
@@ -276,6 +277,7 @@ class Renderer:
         self.background_color = np.asarray(background_color, np.float32)
         self.backdrop = SolidNoise(seed + 101, base_freq=1.5, octaves=4)
         self.backdrop_radius = backdrop_radius
+        self.ambient = 0.65 if soft_light else 0.35  # soft light for colours that already carry shading
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> dict:
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
@@ -307,7 +309,7 @@ class Renderer:
             ns = np.einsum("nk,nkc->nc", bary.astype(np.float32), self.vertex_normals[self.mesh.faces[tri[ok]]])
             ns /= np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-12)
             n = np.where((np.einsum("nc,nc->n", ns, n) > 0.95)[:, None], ns, n)
-            shade = 0.35 + 0.65 * np.abs(n @ LIGHT_DIR.astype(np.float32))
+            shade = self.ambient + (1 - self.ambient) * np.abs(n @ LIGHT_DIR.astype(np.float32))
             rgb[ok] = alb * shade[:, None]
         miss = ~ok
         if miss.any():

@@ -31,3 +31,24 @@ def blob_fusion(tmp_path_factory):
     out = tmp_path_factory.mktemp("blob_fusion")
     synthesize(SynthConfig(scene="blob", views=24, width=320, height=240, points=2000, seed=1), out, overwrite=True)
     return out
+
+
+@pytest.fixture(scope="session")
+def ring16(tmp_path_factory):
+    """16 ring views of the blob at 320x240: enough overlap for SfM."""
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("ring16")
+    synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=320, height=240, points=800, seed=5), out,
+               overwrite=True)
+    return out
+
+
+@pytest.fixture(scope="session")
+def sphere30(tmp_path_factory):
+    """30 sphere views of the blob at 320x240: all-round coverage for end-to-end reconstruction."""
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("sphere30")
+    synthesize(SynthConfig(scene="blob", views=30, width=320, height=240, points=800), out, overwrite=True)
+    return out

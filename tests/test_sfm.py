@@ -19,16 +19,6 @@ from photorecon.metrics import pose_metrics
 from photorecon.sfm import SfMConfig, run_sfm
 
 
-@pytest.fixture(scope="module")
-def ring16(tmp_path_factory):
-    from photorecon.synthetic import SynthConfig, synthesize
-
-    out = tmp_path_factory.mktemp("ring16")
-    synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=320, height=240, points=800, seed=5), out,
-               overwrite=True)
-    return out
-
-
 def _tree_hash(folder):
     h = hashlib.sha256()
     for p in sorted(folder.rglob("*")):

@@ -1,0 +1,148 @@
+"""End to end: `photorecon reconstruct` on synthetic images, resume, failure classes and exit codes."""
+import hashlib
+import json
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+from photorecon.cli import main
+from photorecon.io.dataset import read_model
+from photorecon.metrics import align_cameras, mesh_metrics
+
+
+def _tree_hash(folder):
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        h.update(str(p.relative_to(folder)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def recon(sphere30, tmp_path_factory):
+    out = tmp_path_factory.mktemp("recon") / "out"
+    before = _tree_hash(sphere30 / "images")
+    t0 = time.perf_counter()
+    rc = main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--n-depths", "96"])
+    return {"rc": rc, "out": out, "seconds": time.perf_counter() - t0, "before": before}
+
+
+@pytest.mark.slow
+def test_reconstruct_from_images_alone(recon, sphere30):
+    assert recon["rc"] == 0
+    out = recon["out"]
+    for f in ("mesh.ply", "mesh.glb", "preview.png", "report.json", "report.html", "transforms.json",
+              "sparse/0/cameras.txt"):
+        assert (out / f).is_file(), f
+    assert len(list((out / "depth").glob("*.npy"))) >= 30
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["poses"]["registered"] == 30 and rep["depth"]["source"] == "mvs"
+    assert {"poses", "depth", "fusion"} <= set(rep["stages"]) and rep["stages"]["depth"]["peak_mb"] > 0
+    html = (out / "report.html").read_text()
+    assert "data:image/png;base64," in html and "http" not in html.split("<body>")[1].split("Parameters")[0]
+    est, ref = read_model(out / "sparse" / "0").views, read_model(sphere30 / "sparse" / "0").views
+    s, R, t = align_cameras(est, ref)
+    mesh = trimesh.load(out / "mesh.ply", process=False)
+    mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
+    m = mesh_metrics(mesh, trimesh.load(sphere30 / "gt_mesh.ply", process=False), n_samples=30_000)
+    assert m.fscore >= 0.85, m
+    assert _tree_hash(sphere30 / "images") == recon["before"]
+
+
+@pytest.mark.slow
+def test_rerun_is_a_noop(recon, sphere30):
+    mesh_before = (recon["out"] / "mesh.ply").read_bytes()
+    t0 = time.perf_counter()
+    assert main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(recon["out"]), "--n-depths", "96"]) == 0
+    assert time.perf_counter() - t0 < 0.1 * recon["seconds"]
+    assert (recon["out"] / "mesh.ply").read_bytes() == mesh_before
+    rep = json.loads((recon["out"] / "report.json").read_text())
+    assert all(s.get("cached") for s in rep["stages"].values())
+
+
+@pytest.mark.slow
+def test_interrupted_run_resumes(sphere30, tmp_path, monkeypatch, capsys):
+    import photorecon.fusion as fusion
+
+    out = tmp_path / "out"
+    real = fusion.fuse
+    monkeypatch.setattr(fusion, "fuse", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
+    args = ["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--n-depths", "64"]
+    assert main(args) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert not (out / "mesh.ply").exists() and not (out / ".stages" / "mesh.json").exists()
+    assert (out / ".stages" / "depth.json").exists()
+    monkeypatch.setattr(fusion, "fuse", real)
+    assert main(args) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["stages"]["poses"].get("cached") and rep["stages"]["depth"].get("cached")
+    assert not rep["stages"]["fusion"].get("cached") and (out / "mesh.ply").is_file()
+
+
+def test_given_poses_and_rendered_depth(blob_small, tmp_path):
+    out = tmp_path / "out"
+    assert main(["-q", "reconstruct", str(blob_small / "images"), "-o", str(out),
+                 "--poses", str(blob_small / "transforms.json"), "--depth", str(blob_small / "depth")]) == 0
+    m = mesh_metrics(trimesh.load(out / "mesh.ply", process=False),
+                     trimesh.load(blob_small / "gt_mesh.ply", process=False), n_samples=30_000)
+    assert m.fscore >= 0.97, m
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["poses"]["source"].endswith("transforms.json")
+
+
+def test_failure_classes_and_exit_codes(tmp_path, blob_small, capsys):
+    import cv2
+
+    def run(*args):
+        rc = main(["-q", "reconstruct", *map(str, args)])
+        return rc, capsys.readouterr().err.strip()
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    rc, err = run(empty, "-o", tmp_path / "o1")
+    assert rc == 4 and "no readable image" in err and err.count("\n") == 0
+    noise = tmp_path / "noise"
+    noise.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(noise / f"n{i}.png"), cv2.resize(rng.integers(0, 255, (30, 40, 3), dtype=np.uint8), (320, 240)))
+    rc, err = run(noise, "-o", tmp_path / "o2")
+    assert rc == 5 and "registered" in err
+    nodepth = tmp_path / "nodepth"
+    nodepth.mkdir()
+    rc, err = run(blob_small / "images", "-o", tmp_path / "o3", "--poses", blob_small / "transforms.json",
+                  "--depth", nodepth)
+    assert rc == 6 and "no depth map" in err
+    rc, err = run(blob_small / "images", "-o", tmp_path / "o4", "--poses", blob_small / "transforms.json",
+                  "--depth", blob_small / "depth", "--crop", "50,50,50,51,51,51")
+    assert rc == 7 and "no triangle" in err
+    rc, err = run(blob_small / "images", "-o", tmp_path / "o5", "--formats", "stl")
+    assert rc == 2 and "--formats" in err
+    with pytest.raises(SystemExit) as e:
+        main(["reconstruct", str(blob_small / "images"), "-o", str(tmp_path / "o6"), "--mesher", "poisson"])
+    assert e.value.code == 2
+    capsys.readouterr()
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "mine.txt").write_text("x")
+    rc, err = run(blob_small / "images", "-o", foreign)
+    assert rc == 8 and "--overwrite" in err
+    rc, err = run(blob_small / "images", "-o", blob_small / "images" / "out")
+    assert rc == 8 and "inside the input" in err
+
+
+def test_transforms_paths_are_confined(blob_small, tmp_path, capsys):
+    data = json.loads((blob_small / "transforms.json").read_text())
+    data["frames"][0]["file_path"] = "../../etc/passwd"
+    bad = tmp_path / "t"
+    bad.mkdir()
+    (bad / "transforms.json").write_text(json.dumps(data))
+    rc = main(["-q", "reconstruct", str(blob_small / "images"), "-o", str(tmp_path / "o"), "--poses",
+               str(bad / "transforms.json")])
+    assert rc == 3 and "leaves" in capsys.readouterr().err
+    data["frames"][0]["file_path"] = "/etc/passwd"
+    (bad / "transforms.json").write_text(json.dumps(data))
+    assert main(["-q", "convert", str(bad / "transforms.json"), str(tmp_path / "c")]) == 3
