@@ -296,3 +296,31 @@ def _run_demo(args):
     s = run_demo(args.out, config_from_args(DemoConfig, args), overwrite=args.overwrite)
     print_summary(s, Path(args.out))
     return 0
+
+
+@command
+def depth(sub):
+    from .depth.mono import MonoConfig
+
+    p = sub.add_parser("depth", help="monocular depth from an ONNX model (MiDaS-style), aligned to the SfM points",
+                       description="Runs a user-supplied ONNX depth model (no weights ship, nothing is downloaded) "
+                                   "and aligns each prediction to the dataset's sparse points; writes "
+                                   "DATASET/depth/NAME.npy + NAME.png (or -o DIR).")
+    p.add_argument("dataset", help="dataset folder (images/ + sparse/0 with points)")
+    p.add_argument("--model", required=True, help="ONNX model file")
+    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
+    add_config_arguments(p, MonoConfig)
+    p.set_defaults(func=_run_depth)
+
+
+def _run_depth(args):
+    from .depth.mono import MonoConfig, run_mono
+    from .io.dataset import Dataset
+
+    ds = Dataset.open(args.dataset)
+    rep = run_mono(ds, args.model, args.out, config_from_args(MonoConfig, args))
+    print(f"depth: {rep['views']} of {len(ds.views)} views aligned ({rep['inference_ms_per_image']:.0f} ms inference, "
+          f"{rep['alignment_ms_per_image']:.1f} ms alignment per image) -> {args.out or args.dataset + '/depth'}")
+    if rep["excluded"]:
+        print(f"  excluded: " + ", ".join(f"{k} ({v})" for k, v in rep["excluded"].items()))
+    return 0
