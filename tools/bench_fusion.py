@@ -68,7 +68,8 @@ def run_speed(n_views: int, tmp: Path) -> dict:
     synthesize(SynthConfig(scene="blob", views=n_views, points=1000), root, overwrite=True)
     ds = Dataset.open(root)
     frames = load_frames(ds, FusionConfig())
-    base = peak_bytes()
+    reset_peak()
+    base = peak_bytes()  # the resident set now: depth maps and images loaded
     t0 = time.perf_counter()
     mesh = fuse(frames, FusionConfig(mesher="tsdf", voxels_across=512), ds.model.points)
     secs = time.perf_counter() - t0

@@ -160,9 +160,14 @@ def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, 
     world_from_ref = invert_rigid(ref.cam_from_world)
     n_src = len(sources)
     k = min(cfg.best_k, n_src)
-    volume = np.empty((cfg.n_depths, H, W), np.float32)
     rel = [s.cam_from_world @ world_from_ref for _, s in sources]
     nvec = np.array([[0.0, 0.0, 1.0]])
+    # running winner-take-all: best score, its plane index, and the scores of its two neighbouring planes
+    best_s = np.full((H, W), -np.inf, np.float32)
+    best = np.zeros((H, W), np.int32)
+    s_lo = np.full((H, W), -1.0, np.float32)
+    s_hi = np.full((H, W), -1.0, np.float32)
+    prev = np.full((H, W), -1.0, np.float32)
     for i, inv_d in enumerate(inv_depths):
         top = [np.full((H, W), -1.0, np.float32) for _ in range(k)]  # running best-k, sorted high to low
         for j, (img, src) in enumerate(sources):
@@ -181,13 +186,17 @@ def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, 
                 hi = np.maximum(top[m], x)
                 x = np.minimum(top[m], x)
                 top[m] = hi
-        volume[i] = sum(top) / k
-    best = volume.argmax(0)
-    rows, cols = np.indices((H, W))
-    s0 = volume[best, rows, cols]
-    lo = np.clip(best - 1, 0, cfg.n_depths - 1)
-    hi = np.clip(best + 1, 0, cfg.n_depths - 1)
-    s_lo, s_hi = volume[lo, rows, cols], volume[hi, rows, cols]
+        score = sum(top) / k
+        # the plane after the current winner gives its upper neighbour score
+        after = best == i - 1
+        s_hi[after] = score[after]
+        win_now = score > best_s
+        best_s[win_now] = score[win_now]
+        best[win_now] = i
+        s_lo[win_now] = prev[win_now]
+        s_hi[win_now] = -1.0
+        prev = score
+    s0 = best_s
     denom = s_lo - 2 * s0 + s_hi
     with np.errstate(divide="ignore", invalid="ignore"):
         off = np.where((denom < -1e-6) & (best > 0) & (best < cfg.n_depths - 1), 0.5 * (s_lo - s_hi) / denom, 0.0)
@@ -202,10 +211,12 @@ def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, 
     return depth, conf
 
 
-def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig) -> dict[str, np.ndarray]:
+def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
     """Keep depths that at least ``min_consistent`` other views confirm (reprojection within ``reproj_px``
-    and relative depth within ``rel_depth``); returns the per-view count of agreeing views."""
+    and relative depth within ``rel_depth``); returns the per-view count of agreeing views. ``stats`` gets
+    the mean forward-backward reprojection error (pixels) of the agreeing pairs."""
     counts = {}
+    err_sum, err_n = 0.0, 0
     for name, r in results.items():
         d = r.depth
         valid = d > 0
@@ -238,11 +249,16 @@ def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig) -> dict[st
             err = np.hypot(ur - uv[ok, 0], vr - uv[ok, 1])
             dz = np.abs(pr[:, 2] - d[valid][ok]) / d[valid][ok]
             agree = np.zeros(len(pts), bool)
-            agree[np.flatnonzero(ok)] = (err < cfg.reproj_px) & (dz < cfg.rel_depth)
+            good = (err < cfg.reproj_px) & (dz < cfg.rel_depth)
+            agree[np.flatnonzero(ok)] = good
+            err_sum += float(err[good].sum())
+            err_n += int(good.sum())
             c = np.zeros(len(pts), np.int32)
             c[agree] = 1
             cnt[valid] += c
         counts[name] = cnt
+    if stats is not None:
+        stats["mean_reprojection_px"] = err_sum / err_n if err_n else float("nan")
     return counts
 
 
@@ -291,10 +307,14 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     t_sweep = time.perf_counter() - t0
     if not results:
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    consistency: dict = {}
     if cfg.min_consistent > 0:
-        counts = geometric_filter(results, cfg)
+        counts = geometric_filter(results, cfg, consistency)
+        before = sum(int((r.depth > 0).sum()) for r in results.values())
         for name, r in results.items():
             r.depth[counts[name] < cfg.min_consistent] = 0
+        after = sum(int((r.depth > 0).sum()) for r in results.values())
+        consistency["kept_fraction"] = after / before if before else 0.0
     written = 0
     stats = {}
     for v in model.views:
@@ -319,7 +339,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         written += 1
     if not written:
         raise NoDepthError("mvs: no depth survived filtering in any view")
-    report = {"views": written, "skipped": skipped, "sweep_seconds": t_sweep,
+    report = {"views": written, "skipped": skipped, "sweep_seconds": t_sweep, "consistency": consistency,
               "seconds_per_view": t_sweep / max(len(results), 1), "per_view": stats}
     atomic_write_json(out / "mvs_report.json", report)
     return report
