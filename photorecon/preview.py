@@ -12,7 +12,7 @@ from .io.images import write_image
 
 
 def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
-                   extra_points: np.ndarray | None = None) -> list[View]:
+                   extra_points: np.ndarray | None = None, front: np.ndarray | None = None) -> list[View]:
     lo, hi = mesh.bounds
     center = (lo + hi) / 2
     pts = np.asarray(mesh.vertices)
@@ -20,14 +20,19 @@ def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
         pts = np.vstack([pts, extra_points])
     # distance at which the bounding sphere (about the mesh's centre) fills the 55-degree view
     radius = float(np.linalg.norm(pts - center, axis=1).max()) / np.sin(np.radians(55.0 / 2)) * 1.02
-    az = np.radians(np.linspace(30, 390, n, endpoint=False))
-    el = np.radians(25.0)
     up = np.asarray(up, float)
-    # an orthonormal frame around `up`
+    el = np.radians(25.0)
+    # an orthonormal frame around `up`; with a `front` direction (cameras on one side, e.g. a facade) the
+    # views spread over an arc on that side, else all around
     a = np.array([1.0, 0, 0]) if abs(up[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = np.cross(up, a)
+    if front is not None:
+        f = front - (front @ up) * up
+        if np.linalg.norm(f) > 1e-9:
+            a = f / np.linalg.norm(f)
+    e1 = a - (a @ up) * up
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
+    az = np.radians(np.linspace(-40, 40, n) if front is not None else np.linspace(30, 390, n, endpoint=False))
     pos = center + radius * (np.cos(el) * (np.cos(az)[:, None] * e1 + np.sin(az)[:, None] * e2) + np.sin(el) * up)
     intr = Intrinsics.from_fov(size, size, 55.0)
     return [View(f"preview_{i}", intr, T) for i, T in enumerate(look_at_views(pos, center, up))]
@@ -50,10 +55,16 @@ def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] 
     tiles = []
     diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
     centers = np.array([c.center for c in cameras]) if cameras else None
+    front = None
+    if cameras:
+        dirs = centers - mesh.bounds.mean(0)
+        mean_dir = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).mean(0)
+        if np.linalg.norm(mean_dir) > 0.5:  # the cameras look from one side
+            front = mean_dir
     # the first tiles frame the mesh alone; the rest also the cameras, drawn as frusta
     n_cam = n // 2 if cameras else 0
-    close = _preview_views(mesh, n, size, up)[: n - n_cam]
-    wide = _preview_views(mesh, n, size, up, centers)[n - n_cam:] if n_cam else []
+    close = _preview_views(mesh, n, size, up, front=front)[: n - n_cam]
+    wide = _preview_views(mesh, n, size, up, centers, front)[n - n_cam:] if n_cam else []
     for k, v in enumerate(close + wide):
         img = r.render(v).rgb.copy()
         if k >= len(close):

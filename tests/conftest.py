@@ -1,9 +1,20 @@
 """Shared fixtures: small synthetic datasets rendered once per test session (no ../shared data)."""
+import hashlib
 import os
 
 import pytest
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+
+
+def tree_hash(folder):
+    """SHA-256 over a folder's relative paths and file bytes: 'unchanged byte for byte'."""
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*")):
+        h.update(str(p.relative_to(folder)).encode())
+        if p.is_file():
+            h.update(p.read_bytes())
+    return h.hexdigest()
 
 
 @pytest.fixture(autouse=True, scope="session")

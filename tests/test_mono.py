@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from onnx_models import conv_net, nan_model, oracle_model, rank3_model
 from photorecon.cli import main
 from photorecon.depth.align import fit_scale_shift
 from photorecon.depth.mono import MonoConfig, MonoModel, run_mono
@@ -16,6 +15,7 @@ from photorecon.fusion import FusionConfig, fuse, load_frames
 from photorecon.io.dataset import Dataset
 from photorecon.mesh import clean
 from photorecon.metrics import mesh_metrics
+from photorecon.testing import conv_net, nan_model, oracle_model, rank3_model
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,4 @@
 """End to end: `photorecon reconstruct` on synthetic images, resume, failure classes and exit codes."""
-import hashlib
 import json
 import time
 
@@ -7,24 +6,16 @@ import numpy as np
 import pytest
 import trimesh
 
+from conftest import tree_hash
 from photorecon.cli import main
 from photorecon.io.dataset import read_model
 from photorecon.metrics import align_cameras, mesh_metrics
 
 
-def _tree_hash(folder):
-    h = hashlib.sha256()
-    for p in sorted(folder.rglob("*")):
-        h.update(str(p.relative_to(folder)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
-
-
 @pytest.fixture(scope="module")
 def recon(sphere30, tmp_path_factory):
     out = tmp_path_factory.mktemp("recon") / "out"
-    before = _tree_hash(sphere30 / "images")
+    before = tree_hash(sphere30 / "images")
     t0 = time.perf_counter()
     rc = main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--n-depths", "96"])
     return {"rc": rc, "out": out, "seconds": time.perf_counter() - t0, "before": before}
@@ -49,7 +40,7 @@ def test_reconstruct_from_images_alone(recon, sphere30):
     mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
     m = mesh_metrics(mesh, trimesh.load(sphere30 / "gt_mesh.ply", process=False), n_samples=30_000)
     assert m.fscore >= 0.85, m
-    assert _tree_hash(sphere30 / "images") == recon["before"]
+    assert tree_hash(sphere30 / "images") == recon["before"]
 
 
 @pytest.mark.slow

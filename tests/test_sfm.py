@@ -1,5 +1,4 @@
 """SfM through pycolmap on synthetic images; camera import/export; pose metrics; bad image folders."""
-import hashlib
 import json
 import shutil
 
@@ -9,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from photorecon.cameras import View
+from conftest import tree_hash
 from photorecon.cli import main
 from photorecon.errors import NoImagesError, SfMError
 from photorecon.ingest import ingest_folder
@@ -19,18 +19,9 @@ from photorecon.metrics import pose_metrics
 from photorecon.sfm import SfMConfig, run_sfm
 
 
-def _tree_hash(folder):
-    h = hashlib.sha256()
-    for p in sorted(folder.rglob("*")):
-        h.update(str(p.relative_to(folder)).encode())
-        if p.is_file():
-            h.update(p.read_bytes())
-    return h.hexdigest()
-
-
 @pytest.mark.slow
 def test_sfm_registers_all_and_matches_truth(ring16, tmp_path):
-    before = _tree_hash(ring16 / "images")
+    before = tree_hash(ring16 / "images")
     out = tmp_path / "sfm"
     res = run_sfm(ring16 / "images", out, SfMConfig())
     assert len(res.registered) == 16 and not res.unregistered
@@ -47,7 +38,7 @@ def test_sfm_registers_all_and_matches_truth(ring16, tmp_path):
     for v in est.views:
         img = cv2.imread(str(out / "images" / v.extra["image_file"]))
         assert img.shape[:2] == (v.intrinsics.height, v.intrinsics.width)
-    assert _tree_hash(ring16 / "images") == before
+    assert tree_hash(ring16 / "images") == before
     # a re-run reuses every stage
     again = run_sfm(ring16 / "images", out, SfMConfig())
     assert set(again.cached) >= {"features", "matching", "mapping", "undistortion"}
@@ -198,7 +189,7 @@ def test_bad_image_folders(tmp_path, blob_small):
     apart.mkdir()
     for i in range(4):
         _noise_image(apart / f"n{i}.png", i)
-    before = _tree_hash(apart)
+    before = tree_hash(apart)
     assert main(["-q", "sfm", str(apart), "-o", str(tmp_path / "o5")]) == 5
-    assert _tree_hash(apart) == before
+    assert tree_hash(apart) == before
     assert not (tmp_path / "o5" / "sparse" / "0").exists()

@@ -1,4 +1,6 @@
-"""Small ONNX models built at test time with the ``onnx`` package (no downloaded weights)."""
+"""Small ONNX models built on the spot with the ``onnx`` package (``pip install photorecon[test]``): an exact
+"oracle" depth model, deliberately broken models, and a random-weight network of MiDaS-small-like compute.
+Used by the test suite and the monocular-depth benchmark; no weights are downloaded."""
 from __future__ import annotations
 
 import numpy as np
