@@ -193,3 +193,23 @@ def test_bad_image_folders(tmp_path, blob_small):
     assert main(["-q", "sfm", str(apart), "-o", str(tmp_path / "o5")]) == 5
     assert tree_hash(apart) == before
     assert not (tmp_path / "o5" / "sparse" / "0").exists()
+
+
+@pytest.mark.slow
+def test_mixed_resolutions_get_one_camera_per_size(ring16, tmp_path):
+    src = tmp_path / "mixed"
+    src.mkdir()
+    for i, p in enumerate(sorted((ring16 / "images").glob("*.png"))):
+        img = cv2.imread(str(p))
+        if i % 2:
+            img = cv2.resize(img, (256, 192), interpolation=cv2.INTER_AREA)
+        cv2.imwrite(str(src / p.name), img)
+    res = run_sfm(src, tmp_path / "out", SfMConfig())
+    assert len(res.registered) >= 14
+    cams = (tmp_path / "out" / "colmap" / "sfm_report.json")
+    assert cams.is_file()
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(tmp_path / "out" / "colmap" / "sparse"))
+    sizes = {(c.width, c.height) for c in rec.cameras.values()}
+    assert sizes == {(320, 240), (256, 192)}

@@ -135,7 +135,7 @@ def main() -> None:
                                 "preview": str(out / "herz_jesu_preview.png")}
     s = res["speed"]
     print(f"speed: {s['size']} reference, {s['sources']} sources, {s['depths']} depths: {s['seconds_median']:.2f} s "
-          f"(target {s['target_s']} s), peak {s['peak_mb']:.0f} MB ({s['peak_above_inputs_mb']:.0f} MB for the sweep)")
+          f"(target {s['target_s']} s), peak memory of the process {s['peak_mb']:.0f} MB")
     print(f"{'set':22} {'s/view':>7} {'<1% err':>8} {'coverage':>9} {'F@0.5%':>7} {'F@1%':>7} {'Chamfer%':>9} {'reproj px':>9}")
     for k in ("true_poses", "sfm_poses"):
         if k in res:
