@@ -69,7 +69,7 @@ def _run_fuse(args):
 
 
 @command
-def eval(sub):  # noqa: A001 - the command's name
+def eval_cmd(sub):
     p = sub.add_parser("eval", help="evaluate a mesh against ground truth (or poses against a reference)",
                        description="Mesh: accuracy, completeness, Chamfer, precision/recall/F-score at tau "
                                    "(default 1%% of the truth's diagonal) and tau/2, normal consistency. "
@@ -192,8 +192,6 @@ def convert(sub):
 
 
 def _run_convert(args):
-    from pathlib import Path
-
     from .io.convert import convert_cameras
 
     dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world)

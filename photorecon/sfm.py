@@ -64,7 +64,6 @@ def _quiet(pycolmap) -> None:
 # --- reading and writing models ------------------------------------------------------------------------------
 def _to_sparse(rec) -> SparseModel:
     views, obs = [], {}
-    pycolmap = _pycolmap()
     for image_id in sorted(rec.reg_image_ids()):
         image = rec.images[image_id]
         cam = rec.cameras[image.camera_id]
@@ -85,7 +84,6 @@ def _to_sparse(rec) -> SparseModel:
     xyz = np.array([rec.points3D[int(i)].xyz for i in pids], float).reshape(-1, 3)
     rgb = np.array([rec.points3D[int(i)].color for i in pids], np.uint8).reshape(-1, 3)
     err = np.array([rec.points3D[int(i)].error for i in pids], float)
-    del pycolmap
     return SparseModel(views, xyz, rgb, pids, err, obs)
 
 

@@ -360,7 +360,7 @@ def make_views(cfg: SynthConfig) -> list[View]:
     else:
         pos = sphere_positions(cfg.views, cfg.radius, hemisphere=cfg.rig == "hemisphere")
     up = np.array([0.0, 0.0, 1.0])
-    if cfg.up == "y":  # rotate the z-up placement into a y-up world: (x, y, z) -> (x, z, -y)... keep right-handed
+    if cfg.up == "y":  # rotate the z-up placement into a y-up world: (x, y, z) -> (x, z, -y), a rotation
         pos = pos[:, [0, 2, 1]] * [1, 1, -1]
         up = np.array([0.0, 1.0, 0.0])
     rng = np.random.default_rng(cfg.seed + 7)

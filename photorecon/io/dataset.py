@@ -82,13 +82,19 @@ class Dataset:
             raise InputDataError(f"view {view.name}: image is {img.shape[1]}x{img.shape[0]} but its camera is {W}x{H}")
         return img
 
+    def depth_path(self, view: View) -> Path:
+        """DEPTH_DIR/NAME.npy, else (when the depth folder is the default one) the frame's ``depth_file_path``
+        from a transforms.json (confined to its folder)."""
+        p = self.depth_dir / f"{view.name}.npy"
+        if not p.is_file() and "depth_file_path" in view.extra and self.depth_dir == self.root / "depth":
+            return Path(view.extra["depth_file_path"])
+        return p
+
     def depth(self, view: View) -> np.ndarray:
-        p = Path(view.extra["depth_file_path"]) if "depth_file_path" in view.extra and not (self.depth_dir / f"{view.name}.npy").exists() \
-            else self.depth_dir / f"{view.name}.npy"
-        return read_depth(p, (view.intrinsics.height, view.intrinsics.width), view.name)
+        return read_depth(self.depth_path(view), (view.intrinsics.height, view.intrinsics.width), view.name)
 
     def has_depth(self, view: View) -> bool:
-        return (self.depth_dir / f"{view.name}.npy").is_file()
+        return self.depth_path(view).is_file()
 
     def confidence(self, view: View) -> np.ndarray | None:
         p = self.depth_dir / f"{view.name}.conf.npy"
