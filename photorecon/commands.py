@@ -320,5 +320,5 @@ def _run_depth(args):
     print(f"depth: {rep['views']} of {len(ds.views)} views aligned ({rep['inference_ms_per_image']:.0f} ms inference, "
           f"{rep['alignment_ms_per_image']:.1f} ms alignment per image) -> {args.out or args.dataset + '/depth'}")
     if rep["excluded"]:
-        print(f"  excluded: " + ", ".join(f"{k} ({v})" for k, v in rep["excluded"].items()))
+        print("  excluded: " + ", ".join(f"{k} ({v})" for k, v in rep["excluded"].items()))
     return 0

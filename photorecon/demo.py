@@ -7,9 +7,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-import trimesh
-
 from .io.atomic import atomic_write_json
 
 log = logging.getLogger("photorecon")
@@ -26,9 +23,8 @@ class DemoConfig:
 
 
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
-    from .io.dataset import read_model
     from .io.output import prepare_output
-    from .metrics import align_cameras, mesh_metrics, pose_metrics
+    from .metrics import evaluate_reconstruction
     from .pipeline import StageConfigs, reconstruct, write_html_report
     from .synthetic import SynthConfig, synthesize
 
@@ -42,14 +38,7 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = F
     t_synth = time.perf_counter() - t0
     rec = out / "reconstruction"
     report = reconstruct(data / "images", rec, StageConfigs())
-    ref = read_model(data / "sparse" / "0").views
-    est = read_model(rec / "sparse" / "0").views
-    poses = pose_metrics(est, ref)
-    s, R, t = align_cameras(est, ref)
-    mesh = trimesh.load(rec / "mesh.ply", process=False)
-    mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
-    gt = trimesh.load(data / "gt_mesh.ply", process=False)
-    m = mesh_metrics(mesh, gt, n_samples=100_000)
+    poses, m = evaluate_reconstruction(rec, data)
     total = time.perf_counter() - t0
     summary = {"scene": cfg.scene, "views": cfg.views, "size": f"{cfg.width}x{cfg.height}",
                "registered": poses["registered"], "rotation_error_mean_deg": poses["rot_mean_deg"],

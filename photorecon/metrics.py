@@ -220,3 +220,21 @@ def pose_metrics(estimate: list, reference: list) -> dict:
             "spread": spread, "center_mean_rel": float(cerr.mean() / spread), "center_max_rel": float(cerr.max() / spread),
             "sim3_scale": s, "per_image": {e.name: {"rot_deg": float(a), "center": float(b)}
                                            for (e, _), a, b in zip(pairs, rerr, cerr)}}
+
+
+def evaluate_reconstruction(rec_dir, data_dir, n_samples: int = 100_000) -> tuple[dict, MeshMetrics]:
+    """A ``reconstruct`` output folder against a synthetic dataset: pose metrics, and mesh metrics after
+    moving the mesh into the truth's world with the Sim3 that aligns the cameras."""
+    from pathlib import Path
+
+    from .io.dataset import read_model
+
+    rec_dir, data_dir = Path(rec_dir), Path(data_dir)
+    ref = read_model(data_dir / "sparse" / "0").views
+    est = read_model(rec_dir / "sparse" / "0").views
+    poses = pose_metrics(est, ref)
+    s, R, t = align_cameras(est, ref)
+    mesh = trimesh.load(rec_dir / "mesh.ply", process=False)
+    mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
+    gt = trimesh.load(data_dir / "gt_mesh.ply", process=False)
+    return poses, mesh_metrics(mesh, gt, n_samples=n_samples)

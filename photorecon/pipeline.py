@@ -26,7 +26,6 @@ import json
 import logging
 import platform
 import shutil
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 

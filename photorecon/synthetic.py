@@ -19,7 +19,6 @@ Output layout of ``write_dataset`` (the interface of every later stage)::
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field

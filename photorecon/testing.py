@@ -53,7 +53,7 @@ def rank3_model(path):
 
 def nan_model(path, size=(64, 64)):
     """Outputs 0 / 0 = NaN everywhere."""
-    from onnx import TensorProto, helper, numpy_helper
+    from onnx import TensorProto, helper
 
     H, W = size
     inits = []

@@ -5,7 +5,6 @@ from scipy.spatial.transform import Rotation
 
 from photorecon import conventions as cv
 from photorecon.cameras import Intrinsics, camera_center, look_at, project, transform_points
-from photorecon.errors import BadArgumentError
 
 rng = np.random.default_rng(0)
 

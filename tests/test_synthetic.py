@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from photorecon.cameras import backproject_depth, project
+from photorecon.cameras import backproject_depth
 from photorecon.conventions import opencv_from_nerf
 from photorecon.errors import BadArgumentError, InputDataError
 from photorecon.io.colmap_text import read_colmap_text

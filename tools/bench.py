@@ -12,12 +12,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-import trimesh
-
 from photorecon import progress
-from photorecon.io.dataset import read_model
-from photorecon.metrics import align_cameras, mesh_metrics, pose_metrics
+from photorecon.metrics import evaluate_reconstruction
 from photorecon.pipeline import reconstruct
 from photorecon.resources import peak_bytes, reset_peak
 from photorecon.synthetic import SynthConfig, synthesize
@@ -32,13 +28,7 @@ def run_scene(scene: str, args, tmp: Path) -> dict:
     synth = {"seconds": time.perf_counter() - t0, "peak_mb": peak_bytes() / 2**20}
     out = tmp / f"{scene}_rec"
     rep = reconstruct(data / "images", out)
-    ref = read_model(data / "sparse" / "0").views
-    est = read_model(out / "sparse" / "0").views
-    pm = pose_metrics(est, ref)
-    s, R, t = align_cameras(est, ref)
-    mesh = trimesh.load(out / "mesh.ply", process=False)
-    mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
-    mm = mesh_metrics(mesh, res.mesh, n_samples=100_000)
+    pm, mm = evaluate_reconstruction(out, data)
     st = rep["stages"]
     return {"scene": scene, "views": args.views, "size": f"{args.width}x{args.height}",
             "render_s_per_view": res.seconds_per_view, "synth": synth,

@@ -26,7 +26,7 @@ import trimesh
 from photorecon import progress
 from photorecon.depth.mvs import MVSConfig, run_mvs
 from photorecon.fusion import FusionConfig, fuse, load_frames
-from photorecon.io.dataset import Dataset, read_model
+from photorecon.io.dataset import Dataset
 from photorecon.mesh import clean, export
 from photorecon.metrics import align_cameras, depth_metrics, mesh_metrics
 from photorecon.preview import render_preview

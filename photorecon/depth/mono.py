@@ -246,5 +246,5 @@ def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None,
               "fits": {n: f.as_dict() for n, f in fits.items()}}
     atomic_write_json(out / "mono_report.json", report)
     if not written:
-        raise NoDepthError(f"mono: every view was excluded (" + "; ".join(f"{k}: {m}" for k, m in list(excluded.items())[:3]) + ")")
+        raise NoDepthError("mono: every view was excluded (" + "; ".join(f"{k}: {m}" for k, m in list(excluded.items())[:3]) + ")")
     return report

@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..cameras import View, backproject_depth, camera_center, invert_rigid
+from ..cameras import View, backproject_depth, invert_rigid
 from ..errors import NoDepthError
 from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import depth_preview, write_image
