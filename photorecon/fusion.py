@@ -1,7 +1,8 @@
 """From depth maps to one surface: TSDF fusion (Open3D tensor ``VoxelBlockGrid``) and grid meshing.
 
-TSDF: each view's z-depth (masked, range-limited, confidence-thresholded) is integrated into a sparse voxel
-block grid on the CPU; marching cubes extracts the zero level set. The voxel size defaults to the scene's
+TSDF: each view's z-depth (masked, range-limited) is integrated into a sparse voxel block grid on the CPU,
+with each pixel weighted by its confidence map when there is one (MVS); marching cubes extracts the zero
+level set. The voxel size defaults to the scene's
 scale (sparse points, else back-projected depth) / ``voxels_across``. The legacy ``ScalableTSDFVolume``
 is not used: with Open3D 0.20 on the CPU it extracts an empty mesh.
 
@@ -44,17 +45,20 @@ class FusionConfig:
     depth_max: float | None = field(default=None, metadata={"help": "ignore depth beyond this (default: no limit)"})
     conf_threshold: float = field(default=0.0, metadata={"help": "ignore depth whose confidence (NAME.conf.npy) is below this"})
     use_masks: bool = field(default=True, metadata={"help": "apply masks/NAME.png when present"})
+    confidence_weights: bool = field(default=True, metadata={"help": "TSDF: weight each pixel by its confidence map (NAME.conf.npy) when present"})
     max_stretch: float = field(default=8.0, metadata={"help": "grid: reject triangles whose edge exceeds this many pixel footprints"})
     memory_limit_gb: float | None = field(default=None, metadata={"help": "refuse a voxel grid above this size (default: 60%% of free memory)"})
 
 
 @dataclass
 class DepthFrame:
-    """One view's depth ready for fusion: z-depth (H, W) float32 (0 = invalid) and optional colour (H, W, 3) uint8."""
+    """One view's depth ready for fusion: z-depth (H, W) float32 (0 = invalid), optional colour (H, W, 3)
+    uint8 and optional per-pixel confidence (H, W) in [0, 1], used as the TSDF integration weight."""
 
     view: View
     depth: np.ndarray
     color: np.ndarray | None = None
+    confidence: np.ndarray | None = None
 
 
 def prepare_depth(view: View, depth: np.ndarray, cfg: FusionConfig, mask: np.ndarray | None = None,
@@ -130,6 +134,45 @@ def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int
     return int(n * 1.5) + 64
 
 
+def _integrate_weighted(vbg, block_coords, f: "DepthFrame", trunc: float, depth_max: float) -> None:
+    """TSDF integration with a per-pixel weight (the confidence map), on the grid's own voxel storage: Open3D's
+    ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF."""
+    hm = vbg.hashmap()
+    hm.activate(block_coords)
+    buf, _ = hm.find(block_coords)
+    xyz, vidx = vbg.voxel_coordinates_and_flattened_indices(buf)
+    X = xyz.numpy()
+    idx = vidx.numpy().ravel()
+    T = f.view.cam_from_world
+    Xc = X @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
+    z = Xc[:, 2]
+    intr = f.view.intrinsics
+    H, W = f.depth.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.round(intr.fx * Xc[:, 0] / z + intr.cx)
+        v = np.round(intr.fy * Xc[:, 1] / z + intr.cy)
+    ok = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    ui, vi = u[ok].astype(np.int64), v[ok].astype(np.int64)
+    d = f.depth[vi, ui]
+    sdf = d - z[ok]
+    good = (d > 0) & (d < depth_max) & (sdf >= -trunc)
+    w_new = f.confidence[vi, ui][good].astype(np.float32)
+    keep = w_new > 0
+    sel = idx[ok][good][keep]
+    w_new = w_new[keep]
+    sdf_n = np.minimum(sdf[good][keep], trunc) / trunc
+    tsdf = vbg.attribute("tsdf").numpy().reshape(-1)
+    weight = vbg.attribute("weight").numpy().reshape(-1)
+    color = vbg.attribute("color").numpy().reshape(-1, 3)
+    w_old = weight[sel]
+    w_sum = w_old + w_new
+    tsdf[sel] = (tsdf[sel] * w_old + sdf_n * w_new) / w_sum
+    if f.color is not None:
+        c_new = f.color[vi, ui][good][keep].astype(np.float32)  # the grid stores colour in 0..255
+        color[sel] = (color[sel] * w_old[:, None] + c_new * w_new[:, None]) / w_sum[:, None]
+    weight[sel] = w_sum
+
+
 def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
     """Integrate ``frames`` into a VoxelBlockGrid and extract a coloured triangle mesh."""
     import open3d as o3d
@@ -169,7 +212,10 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
         color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
         coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
-        vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+        if f.confidence is not None and cfg.confidence_weights:
+            _integrate_weighted(vbg, coords, f, trunc, depth_max)
+        else:
+            vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
     mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
     V = mesh.vertex.positions.numpy().astype(np.float64)
     F = mesh.triangle.indices.numpy().astype(np.int64)
@@ -337,7 +383,7 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> 
             color = dataset.image(v)
         except Exception:  # colour is optional for fusion
             color = None
-        frames.append(DepthFrame(v, depth, color))
+        frames.append(DepthFrame(v, depth, color, dataset.confidence(v)))
     if missing:
         log.warning("%d view(s) without a depth map in %s skipped: %s", len(missing), dataset.depth_dir,
                     ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
