@@ -4,12 +4,14 @@ For each reference view:
 
 1. **View selection**: K source views ranked by shared sparse points weighted by their triangulation angle
    (best near 15 degrees, none below 2), or by camera geometry when the model has no points.
-2. **Depth range** from the sparse points seen in the view (1st-99th percentile, widened 10%).
+2. **Depth range** from the sparse points seen in the view (1st-99th percentile, widened 10%); for a model
+   without any sparse point, from where the cameras' optical axes converge.
 3. **Plane sweep** over ``n_depths`` fronto-parallel planes uniform in inverse depth: each source image is
    warped onto the reference with the plane's homography (``cv2.warpPerspective``); the matching cost is
    ZNCC over a ``window`` box (box filters), aggregated as the mean of the best ``best_k`` sources
    (occlusion-robust); winner-take-all, then a parabola through the neighbouring scores for sub-plane depth.
-   Confidence = the aggregated ZNCC of the winner. Work happens at most ``max_size`` pixels wide.
+   Confidence = the aggregated ZNCC of the winner (TSDF fusion uses it as the pixel's weight). Work happens
+   at most ``max_size`` pixels wide.
 4. **Filtering**: confidence threshold, then geometric consistency: each depth is re-projected into every
    source view's depth map and back; it is kept when at least ``min_consistent`` views agree within
    ``reproj_px`` pixels and ``rel_depth`` relative depth.
