@@ -166,7 +166,7 @@ def _sparse_samples(model, view: View, pred: np.ndarray) -> tuple[np.ndarray, np
     if view.name not in model.observations:
         return np.zeros(0), np.zeros(0)
     uv, ids = model.observations[view.name]
-    index = {int(p): k for k, p in enumerate(model.point_ids)}
+    index = model.point_index()
     keep = [j for j, p in enumerate(ids) if p >= 0 and int(p) in index]
     if not keep:
         return np.zeros(0), np.zeros(0)

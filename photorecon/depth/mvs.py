@@ -85,7 +85,7 @@ def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
     ref_ids = set()
     if ref.name in model.observations:
         ref_ids = {int(i) for i in model.observations[ref.name][1] if i >= 0}
-    index = {int(p): k for k, p in enumerate(model.point_ids)} if len(model.points) else {}
+    index = model.point_index() if len(model.points) else {}
     for v in model.views:
         if v.name == ref.name:
             continue

@@ -27,6 +27,14 @@ class SparseModel:
     errors: np.ndarray | None = None
     observations: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
+    def point_index(self) -> dict[int, int]:
+        """point3D id -> row in ``points`` (built once; models are not mutated after loading)."""
+        cached = getattr(self, "_point_index", None)
+        if cached is None or len(cached) != len(self.point_ids):
+            cached = {int(pid): i for i, pid in enumerate(self.point_ids)}
+            self._point_index = cached
+        return cached
+
     def view(self, name: str) -> View:
         for v in self.views:
             if v.name == name:
@@ -38,7 +46,7 @@ class SparseModel:
         if name not in self.observations or len(self.points) == 0:
             return np.zeros((0, 3))
         ids = self.observations[name][1]
-        index = {int(pid): i for i, pid in enumerate(self.point_ids)}
+        index = self.point_index()
         rows = [index[int(p)] for p in ids if p >= 0 and int(p) in index]
         return self.points[rows]
 
