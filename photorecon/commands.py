@@ -154,7 +154,7 @@ def sfm(sub):
     p = sub.add_parser("sfm", help="camera poses for an image folder (COLMAP SfM via pycolmap)",
                        description="Structure from motion: writes OUT/images (undistorted), OUT/sparse/0 "
                                    "(COLMAP text) and OUT/transforms.json; stages are cached in OUT/colmap.")
-    p.add_argument("images", help="image folder (never written to)")
+    p.add_argument("images", help="image folder or video file (never written to)")
     _out_args(p)
     p.add_argument("--force", action="store_true", help="recompute every stage instead of reusing cached ones")
     add_config_arguments(p, SfMConfig)
@@ -246,7 +246,7 @@ def reconstruct(sub):
                        description="Ingest -> poses (SfM, or --poses) -> undistort -> depth (MVS, --depth-model, or "
                                    "--depth DIR) -> fusion (TSDF or grid) -> cleaning -> export, preview and report. "
                                    "A re-run resumes from the last complete stage.")
-    p.add_argument("images", help="image folder (never written to)")
+    p.add_argument("images", help="image folder or video file (never written to)")
     _out_args(p)
     p.add_argument("--force", action="store_true", help="recompute every stage")
     _add_stage_args(p)

@@ -1,5 +1,6 @@
 """Ingest an image folder: find images (any letter case), decode them, apply EXIF orientation, read EXIF focal
-length priors, and copy them into a working folder (the user's folder is never written to)."""
+length priors, and copy them into a working folder (the user's folder is never written to). A video file
+gives every k-th frame instead."""
 from __future__ import annotations
 
 import logging
@@ -17,6 +18,8 @@ from .io.atomic import atomic_path
 log = logging.getLogger("photorecon")
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
+
 
 
 @dataclass
@@ -124,3 +127,34 @@ def read_K(path: str | Path, width: int, height: int) -> Intrinsics:
         return Intrinsics.from_K(K, width, height)
     except BadArgumentError as exc:
         raise InputDataError(f"{path}: {exc}") from None
+
+
+def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest:
+    """Every ``every``-th frame of a video file as PNG images in ``work`` (frame_00000.png, ...)."""
+    video, work = Path(video), Path(work)
+    if every < 1:
+        raise BadArgumentError(f"--video-every: expected a positive frame step, got {every}")
+    cap = cv2.VideoCapture(str(video))
+    if not cap.isOpened():
+        raise NoImagesError(f"{video}: cannot open the video (unsupported codec or not a video)")
+    work.mkdir(parents=True, exist_ok=True)
+    out, k = [], 0
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            if k % every == 0:
+                name = f"frame_{k:05d}.png"
+                if not (work / name).exists():
+                    with atomic_path(work / name) as tmp:
+                        cv2.imwrite(str(tmp), frame)
+                H, W = frame.shape[:2]
+                out.append(IngestedImage(name, video, W, H))
+            k += 1
+    finally:
+        cap.release()
+    if not out:
+        raise NoImagesError(f"{video}: no frame could be decoded")
+    log.info("video: %d of %d frames taken (every %d-th)", len(out), k, every)
+    return Ingest(out)

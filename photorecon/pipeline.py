@@ -146,11 +146,16 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
     cfgs = cfgs or StageConfigs()
     run = cfgs.run
+    from .ingest import VIDEO_SUFFIXES
+
     images = Path(images)
-    if not images.is_dir():
+    is_video = images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES
+    if not images.is_dir() and not is_video:
         from .errors import NoImagesError
 
-        raise NoImagesError(f"{images}: no such image folder")
+        raise NoImagesError(f"{images}: no such image folder (or video file)")
+    if is_video and cfgs.run.poses:
+        raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = tuple(f.strip().lower() for f in run.formats.split(",") if f.strip())
     if not formats or any(f not in ("ply", "obj", "glb") for f in formats):
         raise BadArgumentError(f"--formats: expected ply, obj and/or glb, got {run.formats!r}")

@@ -54,6 +54,7 @@ class SfMConfig:
     min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of images register"})
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)"})
     seed: int = field(default=0, metadata={"help": "random seed for mapping"})
+    video_every: int = field(default=10, metadata={"help": "when IMAGES is a video file: take every k-th frame"})
 
 
 def _quiet(pycolmap) -> None:
@@ -142,7 +143,7 @@ def _done(path: Path) -> bool:
 def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False) -> SfMResult:
     """Run SfM on ``images_dir`` into ``out`` (see the module docstring). Cached stages are reused unless
     ``force``. Raises ``NoImagesError`` / ``SfMError`` with one clear line on failure."""
-    from .ingest import ingest_folder
+    from .ingest import VIDEO_SUFFIXES, ingest_folder, video_frames
     from .io.nerf import write_transforms
 
     pycolmap = _pycolmap()
@@ -156,7 +157,11 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     secs: dict[str, float] = {}
     cached: list[str] = []
     t0 = time.perf_counter()
-    ing = ingest_folder(images_dir, work / "images", min_images=1)
+    src = Path(images_dir)
+    if src.is_file() and src.suffix.lower() in VIDEO_SUFFIXES:
+        ing = video_frames(src, work / "images", cfg.video_every)
+    else:
+        ing = ingest_folder(images_dir, work / "images", min_images=1)
     if len(ing.images) < 2:
         raise SfMError(f"{images_dir}: only one readable image ({ing.images[0].name}); SfM needs at least 2 "
                        "overlapping photos")

@@ -213,3 +213,33 @@ def test_mixed_resolutions_get_one_camera_per_size(ring16, tmp_path):
     rec = pycolmap.Reconstruction(str(tmp_path / "out" / "colmap" / "sparse"))
     sizes = {(c.width, c.height) for c in rec.cameras.values()}
     assert sizes == {(320, 240), (256, 192)}
+
+
+def _write_video(path, frames, fps=10):
+    h, w = frames[0].shape[:2]
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    assert vw.isOpened()
+    for f in frames:
+        vw.write(f)
+    vw.release()
+
+
+def test_video_frames_every_kth(tmp_path):
+    from photorecon.ingest import video_frames
+
+    frames = [np.full((48, 64, 3), i * 9, np.uint8) for i in range(25)]
+    _write_video(tmp_path / "clip.avi", frames)
+    ing = video_frames(tmp_path / "clip.avi", tmp_path / "frames", every=10)
+    assert [i.name for i in ing.images] == ["frame_00000.png", "frame_00010.png", "frame_00020.png"]
+    assert cv2.imread(str(tmp_path / "frames" / "frame_00010.png")).shape == (48, 64, 3)
+    (tmp_path / "bad.mp4").write_bytes(b"not a video")
+    with pytest.raises(NoImagesError, match="bad.mp4"):
+        video_frames(tmp_path / "bad.mp4", tmp_path / "f2")
+
+
+@pytest.mark.slow
+def test_sfm_from_a_video(ring16, tmp_path):
+    frames = [cv2.imread(str(p)) for p in sorted((ring16 / "images").glob("*.png"))]
+    _write_video(tmp_path / "orbit.avi", frames)
+    assert main(["-q", "sfm", str(tmp_path / "orbit.avi"), "-o", str(tmp_path / "out"), "--video-every", "1"]) == 0
+    assert len(read_model(tmp_path / "out" / "sparse" / "0").views) >= 14
