@@ -7,7 +7,6 @@ import dataclasses
 import logging
 import sys
 import typing
-from pathlib import Path
 
 from . import __version__
 from .errors import PhotoreconError
@@ -16,16 +15,21 @@ log = logging.getLogger("photorecon")
 
 
 # --- configs -> argparse -----------------------------------------------------------------------------------
-def add_config_arguments(parser: argparse.ArgumentParser, config_cls, skip: tuple[str, ...] = ()) -> None:
+def add_config_arguments(parser: argparse.ArgumentParser, config_cls, skip: tuple[str, ...] = (),
+                         defaults=None) -> None:
     """One ``--flag`` per dataclass field of ``config_cls``; help from ``field(metadata={'help': ...})``,
-    choices from ``Literal`` annotations, ``--flag/--no-flag`` for booleans."""
+    choices from ``Literal`` annotations, ``--flag/--no-flag`` for booleans. Default values come from the
+    instance ``defaults`` when given (a stage whose caller overrides a config default), else the class."""
     hints = typing.get_type_hints(config_cls)
     for f in dataclasses.fields(config_cls):
         if f.name in skip or f.metadata.get("cli") is False:
             continue
         flag = "--" + f.name.replace("_", "-")
         tp = hints[f.name]
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        if defaults is not None:
+            default = getattr(defaults, f.name)
+        else:
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
         help_ = f.metadata.get("help", "")
         kw: dict = {"dest": f.name, "default": default, "help": f"{help_} (default: {default})"}
         origin, args = typing.get_origin(tp), typing.get_args(tp)
@@ -110,13 +114,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"photorecon {args.command}: interrupted; incomplete outputs were not kept", file=sys.stderr)
         return 130
-
-
-def existing_path(text: str) -> Path:
-    p = Path(text)
-    if not p.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such file or folder")
-    return p
 
 
 if __name__ == "__main__":  # pragma: no cover

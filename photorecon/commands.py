@@ -3,12 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-import logging
-
 from .cli import add_config_arguments, command, config_from_args
-
-log = logging.getLogger("photorecon")
 
 
 def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
@@ -54,14 +49,10 @@ def fuse(sub):
 
 
 def _run_fuse(args):
-    from .errors import BadArgumentError
     from .fusion import FusionConfig, fuse_dataset
-    from .mesh import CleanConfig
+    from .mesh import CleanConfig, parse_formats
 
-    formats = tuple(f.strip().lower() for f in args.formats.split(",") if f.strip())
-    bad = [f for f in formats if f not in ("ply", "obj", "glb")]
-    if bad or not formats:
-        raise BadArgumentError(f"--formats: expected ply, obj and/or glb, got {args.formats!r}")
+    formats = parse_formats(args.formats)
     path = fuse_dataset(args.dataset, args.out, config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), args.depth_dir, args.overwrite, formats)
     print(f"fuse: mesh written to {path}")
@@ -88,6 +79,8 @@ def eval_cmd(sub):
 def _run_eval(args):
     import json
     from pathlib import Path
+
+    import numpy as np
 
     from .errors import BadArgumentError
 
@@ -225,19 +218,12 @@ def _run_mvs(args):
 
 
 def _add_stage_args(p):
-    from .depth.mvs import MVSConfig
-    from .fusion import FusionConfig
-    from .mesh import CleanConfig
-    from .pipeline import ReconstructConfig
-    from .sfm import SfMConfig
+    from .pipeline import StageConfigs
 
-    add_config_arguments(p.add_argument_group("pipeline"), ReconstructConfig)
-    add_config_arguments(p.add_argument_group("structure from motion"), SfMConfig)
-    add_config_arguments(p.add_argument_group("multi-view stereo"), MVSConfig)
-    g = p.add_argument_group("fusion")
-    add_config_arguments(g, FusionConfig)
-    g.set_defaults(trunc_voxels=3.0)
-    add_config_arguments(p.add_argument_group("cleaning"), CleanConfig)
+    d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
+    for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
+                       ("fusion", d.fusion), ("cleaning", d.clean)):
+        add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg)
 
 
 @command

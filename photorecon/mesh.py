@@ -40,6 +40,18 @@ def to_open3d(mesh: trimesh.Trimesh):
     return m
 
 
+def raycasting_scene(mesh: trimesh.Trimesh):
+    """An Open3D ``RaycastingScene`` holding ``mesh`` (ray casting, closest points, distances)."""
+    import open3d as o3d
+
+    t = o3d.t.geometry.TriangleMesh()
+    t.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
+    t.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(t)
+    return scene
+
+
 def from_open3d(m) -> trimesh.Trimesh:
     colors = None
     if m.has_vertex_colors():
@@ -111,11 +123,22 @@ def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:
     return out if len(out.faces) >= len(mesh.faces) else mesh
 
 
+MESH_FORMATS = ("ply", "obj", "glb")
+
+
+def parse_formats(text: str) -> tuple[str, ...]:
+    """``"ply,glb"`` -> ("ply", "glb"); raises ``BadArgumentError`` for an empty list or an unknown format."""
+    formats = tuple(f.strip().lower() for f in text.split(",") if f.strip())
+    if not formats or any(f not in MESH_FORMATS for f in formats):
+        raise BadArgumentError(f"--formats: expected ply, obj and/or glb, got {text!r}")
+    return formats
+
+
 def export(mesh: trimesh.Trimesh, path: str | Path) -> Path:
     """Write PLY (binary, vertex colours), OBJ or GLB by suffix, atomically."""
     path = Path(path)
     suf = path.suffix.lower()
-    if suf not in (".ply", ".obj", ".glb"):
+    if suf[1:] not in MESH_FORMATS:
         raise BadArgumentError(f"{path}: unsupported mesh format; expected .ply, .obj or .glb")
     if not len(mesh.faces):
         raise EmptyMeshError(f"{path}: refusing to write an empty mesh")

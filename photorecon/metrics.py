@@ -41,11 +41,9 @@ class _Distance:
     def __init__(self, mesh: trimesh.Trimesh):
         import open3d as o3d
 
-        t = o3d.t.geometry.TriangleMesh()
-        t.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
-        t.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(t)
+        from .mesh import raycasting_scene
+
+        self.scene = raycasting_scene(mesh)
         self.normals = np.asarray(mesh.face_normals)
         self.o3d = o3d
 
@@ -139,11 +137,9 @@ def doubled_shell_fraction(mesh: trimesh.Trimesh, tau: float, n_samples: int = 5
     import open3d as o3d
 
     pts, nrm = sample_surface(mesh, n_samples, seed)
-    t = o3d.t.geometry.TriangleMesh()
-    t.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
-    t.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(t)
+    from .mesh import raycasting_scene
+
+    scene = raycasting_scene(mesh)
     fn = np.asarray(mesh.face_normals)
     eps = 1e-3 * tau
     doubled = np.zeros(len(pts), bool)

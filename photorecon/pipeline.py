@@ -34,7 +34,7 @@ import numpy as np
 
 from . import __version__
 from .depth.mvs import MVSConfig
-from .errors import BadArgumentError, InputDataError, NoDepthError
+from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesError
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json, atomic_write_text
 from .mesh import CleanConfig
@@ -60,6 +60,7 @@ class StageConfigs:
     run: ReconstructConfig = field(default_factory=ReconstructConfig)
     sfm: SfMConfig = field(default_factory=SfMConfig)
     mvs: MVSConfig = field(default_factory=MVSConfig)
+    # MVS and monocular depth are noisier than rendered depth: a wider truncation band than FusionConfig's
     fusion: FusionConfig = field(default_factory=lambda: FusionConfig(trunc_voxels=3.0))
     clean: CleanConfig = field(default_factory=CleanConfig)
 
@@ -140,25 +141,20 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
     from .io.output import prepare_output
-    from .mesh import clean, export
+    from .ingest import VIDEO_SUFFIXES
+    from .mesh import clean, export, parse_formats
     from .preview import render_preview
     from .sfm import run_sfm
 
     cfgs = cfgs or StageConfigs()
     run = cfgs.run
-    from .ingest import VIDEO_SUFFIXES
-
     images = Path(images)
     is_video = images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES
     if not images.is_dir() and not is_video:
-        from .errors import NoImagesError
-
         raise NoImagesError(f"{images}: no such image folder (or video file)")
-    if is_video and cfgs.run.poses:
+    if is_video and run.poses:
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
-    formats = tuple(f.strip().lower() for f in run.formats.split(",") if f.strip())
-    if not formats or any(f not in ("ply", "obj", "glb") for f in formats):
-        raise BadArgumentError(f"--formats: expected ply, obj and/or glb, got {run.formats!r}")
+    formats = parse_formats(run.formats)
     if run.depth != "mvs" and not Path(run.depth).is_dir():
         raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
     if run.depth_model and not Path(run.depth_model).is_file():

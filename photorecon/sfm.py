@@ -193,10 +193,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
                 reader.camera_model = cfg.camera_model
                 if f_prior:
                     f = float(f_prior)
-                    params = {"SIMPLE_PINHOLE": [f, w / 2, h / 2], "PINHOLE": [f, f, w / 2, h / 2],
-                              "SIMPLE_RADIAL": [f, w / 2, h / 2, 0], "RADIAL": [f, w / 2, h / 2, 0, 0],
-                              "OPENCV": [f, f, w / 2, h / 2, 0, 0, 0, 0]}[cfg.camera_model]
-                    reader.camera_params = ",".join(repr(float(p)) for p in params)
+                    prior = Intrinsics(w, h, f, f, (w - 1) / 2, (h - 1) / 2, model=cfg.camera_model)
+                    reader.camera_params = ",".join(repr(float(p)) for p in prior.to_colmap()[3])
             ext = pycolmap.FeatureExtractionOptions()
             ext.max_image_size = cfg.max_image_size
             ext.sift.max_num_features = cfg.max_features

@@ -31,11 +31,12 @@ import trimesh
 
 from .cameras import Intrinsics, View, invert_rigid, look_at_views, ring_positions, sphere_positions
 from .errors import BadArgumentError, InputDataError
-from .io.atomic import atomic_path, atomic_write_json
+from .io.atomic import atomic_write_json
 from .io.colmap_text import SparseModel, write_colmap_text
-from .io.images import depth_preview, write_image
+from .io.images import write_depth, write_image
 from .io.nerf import write_transforms
 from .io.output import prepare_output
+from .mesh import export
 from .progress import bar
 
 log = logging.getLogger("photorecon")
@@ -263,11 +264,9 @@ class Renderer:
         import open3d as o3d
 
         self.mesh = mesh
-        tmesh = o3d.t.geometry.TriangleMesh()
-        tmesh.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
-        tmesh.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(tmesh)
+        from .mesh import raycasting_scene
+
+        self.scene = raycasting_scene(mesh)
         self.o3d = o3d
         self.appearance = Appearance(mesh, seed, plain)
         self.face_normals = np.asarray(mesh.face_normals, np.float32)
@@ -409,15 +408,12 @@ def synthesize(cfg: SynthConfig, out: str | Path, overwrite: bool = False) -> Sy
         r = renderer.render(view)
         t_render += time.perf_counter() - t0
         write_image(out / "images" / f"{view.name}.png", r.rgb)
-        with atomic_path(out / "depth" / f"{view.name}.npy") as tmp:
-            np.save(tmp, r.depth)
-        write_image(out / "depth" / f"{view.name}.png", depth_preview(r.depth))
+        write_depth(out / "depth", view.name, r.depth)
         write_image(out / "masks" / f"{view.name}.png", (r.mask * 255).astype(np.uint8))
     sparse = sparse_model_from_surface(renderer, views, cfg.points, cfg.seed)
     write_colmap_text(sparse, out / "sparse" / "0")
     write_transforms(views, out / "transforms.json", world="none", depth_dir="depth", mask_dir="masks")
-    with atomic_path(out / "gt_mesh.ply") as tmp:
-        trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(tmp)
+    export(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), out / "gt_mesh.ply")
     info = {"source": source, "normalization": {"center": center.tolist(), "scale": scale,
                                                 "formula": "world = (input - center) / scale"},
             "config": asdict(cfg), "appearance": renderer.appearance.kind,

@@ -29,8 +29,8 @@ import numpy as np
 
 from ..cameras import View
 from ..errors import BadArgumentError, InputDataError, NoDepthError
-from ..io.atomic import atomic_path, atomic_write_json
-from ..io.images import depth_preview, write_image
+from ..io.atomic import atomic_write_json
+from ..io.images import write_depth
 from ..progress import bar
 from .align import Fit, fit_scale_shift
 
@@ -236,9 +236,7 @@ def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None,
         mask = dataset.mask(v)
         if mask is not None:
             d[~mask] = 0
-        with atomic_path(out / f"{v.name}.npy") as tmp:
-            np.save(tmp, d)
-        write_image(out / f"{v.name}.png", depth_preview(d))
+        write_depth(out, v.name, d)
         written += 1
     report = {"model": str(model_path), "providers": net.providers, "preset": cfg.preset or "midas_small",
               "input_size": list(net.fixed) if net.fixed else "dynamic", "views": written, "excluded": excluded,

@@ -29,10 +29,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..cameras import View, backproject_depth, invert_rigid
+from ..cameras import View, backproject_depth, invert_rigid, project, transform_points
 from ..errors import NoDepthError
-from ..io.atomic import atomic_path, atomic_write_json
-from ..io.images import depth_preview, write_image
+from ..io.atomic import atomic_write_json
+from ..io.images import write_depth
 from ..progress import bar
 
 log = logging.getLogger("photorecon")
@@ -213,6 +213,15 @@ def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, 
     return depth, conf
 
 
+def _nearest_pixel(uv: np.ndarray, z: np.ndarray, intr) -> np.ndarray:
+    """(N, 2) integer pixel (column, row) nearest to each projection; -1 where behind or outside the image."""
+    with np.errstate(invalid="ignore"):
+        ij = np.round(np.nan_to_num(uv, nan=-1.0)).astype(np.int64)
+        ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < intr.width) & (ij[:, 1] >= 0) & (ij[:, 1] < intr.height)
+    ij[~ok] = -1
+    return ij
+
+
 def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
     """Keep depths that at least ``min_consistent`` other views confirm (reprojection within ``reproj_px``
     and relative depth within ``rel_depth``); returns the per-view count of agreeing views. ``stats`` gets
@@ -228,36 +237,25 @@ def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dic
             s = results.get(sname)
             if s is None or not len(pts):
                 continue
-            Ts = s.view.cam_from_world
-            ps = pts @ Ts[:3, :3].T + Ts[:3, 3]
-            z = ps[:, 2]
+            # into the source: its depth at the nearest pixel ...
             intr = s.view.intrinsics
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u = intr.fx * ps[:, 0] / z + intr.cx
-                v = intr.fy * ps[:, 1] / z + intr.cy
-            ui, vi = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
-            ok = (z > 0) & (ui >= 0) & (ui < intr.width) & (vi >= 0) & (vi < intr.height)
+            uv_s, z = project(pts, intr, s.view.cam_from_world)
+            ij = _nearest_pixel(uv_s, z, intr)
+            ok = ij[:, 0] >= 0
             ds = np.zeros(len(pts), np.float32)
-            ds[ok] = s.depth[vi[ok], ui[ok]]
+            ds[ok] = s.depth[ij[ok, 1], ij[ok, 0]]
             ok &= ds > 0
-            # back from the source: its depth at (u, v) -> world -> reference pixel
-            xs = np.stack([(ui - intr.cx) / intr.fx * ds, (vi - intr.cy) / intr.fy * ds, ds], 1)[ok]
-            wfs = invert_rigid(Ts)
-            pw = xs @ wfs[:3, :3].T + wfs[:3, 3]
-            pr = pw @ r.view.cam_from_world[:3, :3].T + r.view.cam_from_world[:3, 3]
-            ri = r.view.intrinsics
-            ur = ri.fx * pr[:, 0] / pr[:, 2] + ri.cx
-            vr = ri.fy * pr[:, 1] / pr[:, 2] + ri.cy
-            err = np.hypot(ur - uv[ok, 0], vr - uv[ok, 1])
-            dz = np.abs(pr[:, 2] - d[valid][ok]) / d[valid][ok]
+            # ... and back: that depth -> world -> reference pixel and depth
+            pw = transform_points(invert_rigid(s.view.cam_from_world), intr.pixel_rays(ij[ok]) * ds[ok, None])
+            uv_r, zr = project(pw, r.view.intrinsics, r.view.cam_from_world)
+            err = np.linalg.norm(uv_r - uv[ok], axis=1)
+            d_ref = d[valid][ok]
+            good = (err < cfg.reproj_px) & (np.abs(zr - d_ref) / d_ref < cfg.rel_depth)
             agree = np.zeros(len(pts), bool)
-            good = (err < cfg.reproj_px) & (dz < cfg.rel_depth)
             agree[np.flatnonzero(ok)] = good
             err_sum += float(err[good].sum())
             err_n += int(good.sum())
-            c = np.zeros(len(pts), np.int32)
-            c[agree] = 1
-            cnt[valid] += c
+            cnt[valid] += agree
         counts[name] = cnt
     if stats is not None:
         stats["mean_reprojection_px"] = err_sum / err_n if err_n else float("nan")
@@ -332,11 +330,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             log.warning("mvs: view %s: no depth survived filtering", v.name)
             skipped[v.name] = "no depth survived filtering"
             continue
-        with atomic_path(out / f"{v.name}.npy") as tmp:
-            np.save(tmp, d.astype(np.float32))
-        with atomic_path(out / f"{v.name}.conf.npy") as tmp:
-            np.save(tmp, c)
-        write_image(out / f"{v.name}.png", depth_preview(d))
+        write_depth(out, v.name, d, c)
         stats[v.name] = {"valid_fraction": float((d > 0).mean()), "sources": r.sources}
         written += 1
     if not written:

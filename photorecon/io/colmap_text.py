@@ -35,12 +35,6 @@ class SparseModel:
             self._point_index = cached
         return cached
 
-    def view(self, name: str) -> View:
-        for v in self.views:
-            if v.name == name:
-                return v
-        raise KeyError(name)
-
     def points_seen_by(self, name: str) -> np.ndarray:
         """World points (K, 3) observed in view ``name``."""
         if name not in self.observations or len(self.points) == 0:
@@ -49,14 +43,6 @@ class SparseModel:
         index = self.point_index()
         rows = [index[int(p)] for p in ids if p >= 0 and int(p) in index]
         return self.points[rows]
-
-    def track_lengths(self) -> np.ndarray:
-        counts = {int(p): 0 for p in self.point_ids}
-        for _, ids in self.observations.values():
-            for p in ids[ids >= 0]:
-                if int(p) in counts:
-                    counts[int(p)] += 1
-        return np.array([counts[int(p)] for p in self.point_ids], dtype=np.int64)
 
 
 def _image_key(view: View) -> str:

@@ -46,6 +46,20 @@ def depth_preview(depth: np.ndarray, lo: float | None = None, hi: float | None =
     return out
 
 
+def write_depth(folder: str | Path, name: str, depth: np.ndarray, confidence: np.ndarray | None = None) -> Path:
+    """The synth layout's depth files for one view, each written atomically: ``NAME.npy`` (float32 z-depth),
+    ``NAME.conf.npy`` (float32 confidence, when given) and ``NAME.png`` (colour-mapped preview)."""
+    folder = Path(folder)
+    path = folder / f"{name}.npy"
+    with atomic_path(path) as tmp:
+        np.save(tmp, np.asarray(depth, np.float32))
+    if confidence is not None:
+        with atomic_path(folder / f"{name}.conf.npy") as tmp:
+            np.save(tmp, np.asarray(confidence, np.float32))
+    write_image(folder / f"{name}.png", depth_preview(depth))
+    return path
+
+
 def read_depth(path: str | Path, shape: tuple[int, int] | None = None, view: str | None = None) -> np.ndarray:
     """float32 z-depth (H, W) from a .npy file; NaN/inf/negative values raise, naming the view."""
     path = Path(path)
