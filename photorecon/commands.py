@@ -59,15 +59,33 @@ def _run_fuse(args):
     return 0
 
 
+def _tau_list(text: str) -> list[float]:
+    try:
+        taus = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        taus = []
+    if not taus or not all(t > 0 and t != float("inf") for t in taus):
+        raise argparse.ArgumentTypeError(f"expected one or more distances > 0 separated by commas, got {text!r}")
+    return taus
+
+
 @command
 def eval_cmd(sub):
     p = sub.add_parser("eval", help="evaluate a mesh against ground truth (or poses against a reference)",
-                       description="Mesh: accuracy, completeness, Chamfer, precision/recall/F-score at tau "
-                                   "(default 1%% of the truth's diagonal) and tau/2, normal consistency. "
-                                   f"Points: {200_000} area-uniform samples per mesh, seed 0.")
-    p.add_argument("--mesh", help="result mesh")
-    p.add_argument("--gt", help="ground-truth mesh")
-    p.add_argument("--tau", type=float, help="distance threshold in scene units (default: 1%% of the GT diagonal)")
+                       description="Mesh: accuracy, completeness, Chamfer, precision/recall/F-score at each tau "
+                                   "(default 1%% and 0.5%% of the truth's diagonal), normal consistency; "
+                                   f"{200_000} area-uniform samples per mesh, seed 0. A --gt with vertices and no "
+                                   "faces is a reference point cloud (DTU / ETH3D / Tanks-and-Temples style): per "
+                                   "tau, accuracy = fraction of result samples within tau of a reference point, "
+                                   "completeness = fraction of reference points within tau of the result, F-score.")
+    p.add_argument("--mesh", help="result mesh (or point cloud, against a point-cloud --gt)")
+    p.add_argument("--gt", help="ground truth: a mesh, or a point cloud (PLY with vertices and no faces)")
+    p.add_argument("--tau", type=_tau_list, metavar="T[,T...]",
+                   help="distance thresholds in scene units, e.g. 0.0005,0.001,0.002 (default: 1%%,0.5%% of the "
+                        "GT's bounding-box diagonal); with a mesh GT the first is the headline tau")
+    p.add_argument("--crop-to-reference", type=float, metavar="MARGIN",
+                   help="ignore result samples farther than MARGIN (scene units) from the GT's bounding box: "
+                        "background the reference does not cover; completeness is unaffected")
     p.add_argument("--icp", action="store_true", help="refine the result onto the truth with ICP first")
     p.add_argument("--poses", help="estimated cameras: COLMAP folder or transforms.json")
     p.add_argument("--ref", help="reference cameras: COLMAP folder or transforms.json")
@@ -88,15 +106,30 @@ def _run_eval(args):
     if args.mesh or args.gt:
         if not (args.mesh and args.gt):
             raise BadArgumentError("eval: --mesh and --gt go together")
-        from .mesh import export, load
-        from .metrics import error_colors, mesh_metrics
+        import trimesh
+
+        from .mesh import export
+        from .metrics import cloud_metrics, error_colors, icp_refine, load_reference, mesh_metrics
         from .preview import render_preview
 
-        result, gt = load(args.mesh), load(args.gt)
-        m = mesh_metrics(result, gt, args.tau, icp=args.icp)
+        if args.crop_to_reference is not None and not args.crop_to_reference >= 0:
+            raise BadArgumentError(f"--crop-to-reference: expected a margin >= 0, got {args.crop_to_reference}")
+        gt = load_reference(args.gt)
+        result = load_reference(args.mesh)
+        gt_pts = np.asarray(gt.vertices) if isinstance(gt, trimesh.Trimesh) else gt
+        diag = float(np.linalg.norm(gt_pts.max(0) - gt_pts.min(0)))
+        taus = args.tau or [0.01 * diag, 0.005 * diag]
+        if isinstance(gt, trimesh.Trimesh) and isinstance(result, trimesh.Trimesh):
+            m = mesh_metrics(result, gt, taus[0], icp=args.icp, taus=args.tau, crop_margin=args.crop_to_reference)
+        else:
+            if args.icp:
+                result = icp_refine(result, gt, max_dist=2 * max(taus))
+            m = cloud_metrics(result, gt, taus, crop_margin=args.crop_to_reference)
         report["mesh"] = m.as_dict()
         if args.error_mesh:
-            _, rgb = error_colors(result, gt, m.tau)
+            if not isinstance(result, trimesh.Trimesh):
+                raise BadArgumentError(f"--error-mesh: {args.mesh} is a point cloud, not a mesh to colour")
+            _, rgb = error_colors(result, gt, taus[0])
             colored = result.copy()
             colored.visual.vertex_colors = np.c_[rgb, np.full(len(rgb), 255)]
             export(colored, args.error_mesh)
@@ -121,8 +154,31 @@ def _run_eval(args):
     return 0
 
 
+def _print_thresholds(rows: list[dict]) -> None:
+    print(f"  {'tau':>10}  {'accuracy':>9}  {'completeness':>12}  {'F-score':>8}   (fractions within tau)")
+    for t in rows:
+        print(f"  {t['tau']:>10.4g}  {t['precision']:>9.4f}  {t['recall']:>12.4f}  {t['fscore']:>8.4f}")
+
+
 def _print_report(report: dict) -> None:
-    if "mesh" in report:
+    if report.get("mesh", {}).get("reference") == "points":
+        m = report["mesh"]
+        crop = (f", {m['cropped']} left out beyond {m['crop_margin']:.4g} of its bounding box"
+                if m["crop_margin"] is not None else "")
+        print(f"result vs reference point cloud ({m['reference_points']} points, spacing {m['reference_spacing']:.4g}; "
+              f"{m['result_samples']} result samples{crop})")
+        print(f"  accuracy     mean {m['accuracy_mean']:.4g}  median {m['accuracy_median']:.4g}  (result -> reference)")
+        print(f"  completeness mean {m['completeness_mean']:.4g}  median {m['completeness_median']:.4g}  (reference -> result)")
+        print(f"  chamfer      {m['chamfer']:.4g}")
+        _print_thresholds(m["thresholds"])
+        if m["crop_margin"] is None and m["outside_fraction"] > 0.01:
+            print(f"  note: {100 * m['outside_fraction']:.1f}% of the result lies beyond the largest tau outside the "
+                  "reference's bounding box (background?) and counts as inaccurate; --crop-to-reference MARGIN "
+                  "leaves it out")
+        if min(t["tau"] for t in m["thresholds"]) < m["reference_spacing"]:
+            print("  note: a tau below the reference's point spacing understates accuracy (distances go to the "
+                  "nearest reference point)")
+    elif "mesh" in report:
         m = report["mesh"]
         d = m["diagonal"]
         print(f"mesh vs ground truth (diagonal {d:.4g}, tau {m['tau']:.4g})")
@@ -131,6 +187,10 @@ def _print_report(report: dict) -> None:
         print(f"  chamfer      {m['chamfer']:.4g}  ({100 * m['chamfer'] / d:.3f}% of diagonal)")
         print(f"  at tau       precision {m['precision']:.4f}  recall {m['recall']:.4f}  F {m['fscore']:.4f}")
         print(f"  at tau/2     precision {m['precision_half']:.4f}  recall {m['recall_half']:.4f}  F {m['fscore_half']:.4f}")
+        if len(m["thresholds"]) > 2 or m["thresholds"][0]["tau"] != m["tau"]:
+            _print_thresholds(m["thresholds"])
+        if m["crop_margin"] is not None:
+            print(f"  cropped      {m['cropped']} result samples beyond {m['crop_margin']:.4g} of the truth's bounding box")
         print(f"  normal consistency {m['normal_consistency']:.4f}")
     if "poses" in report:
         p = report["poses"]
