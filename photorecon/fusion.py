@@ -1,10 +1,11 @@
 """From depth maps to one surface: TSDF fusion (Open3D tensor ``VoxelBlockGrid``) and grid meshing.
 
 TSDF: each view's z-depth (masked, range-limited) is integrated into a sparse voxel block grid on the CPU,
-with each pixel weighted by its confidence map when there is one (MVS); marching cubes extracts the zero
-level set. The voxel size defaults to the scene's
-scale (sparse points, else back-projected depth) / ``voxels_across``. The legacy ``ScalableTSDFVolume``
-is not used: with Open3D 0.20 on the CPU it extracts an empty mesh.
+with each pixel weighted by its confidence map when there is one (MVS, a compiled numba kernel on the grid's
+own storage); marching cubes extracts the zero level set. The voxel size defaults to ``voxel_footprints``
+pixel footprints (the median ``z / f`` of the depth maps, at their own resolution, over the central part of
+each view: the surface the camera looks at), coarsened with a warning only when the grid would not fit in
+memory. The legacy ``ScalableTSDFVolume`` is not used: with Open3D 0.20 on the CPU it extracts an empty mesh.
 
 Grid meshing (the original article's mesher, done right): every valid 2x2 pixel quad of a view gives an
 upper-left and a lower-right triangle; triangles across depth discontinuities are rejected by a scale-free
@@ -15,12 +16,14 @@ so overlapping shells are dropped) and near-duplicate vertices are welded.
 from __future__ import annotations
 
 import logging
+import warnings
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 import trimesh
+from numba import njit, prange
 
 from .cameras import View, backproject_depth, camera_center
 from .errors import BadArgumentError, EmptyMeshError, InputDataError, NoDepthError
@@ -37,8 +40,9 @@ class FusionConfig:
     """Settings of the fusion stage (``photorecon fuse``)."""
 
     mesher: Literal["tsdf", "grid"] = field(default="tsdf", metadata={"help": "TSDF fusion or per-view grid meshing"})
-    voxel_size: float | None = field(default=None, metadata={"help": "TSDF voxel size in scene units (default: scene diagonal / voxels-across, at least 1.5 pixel footprints)"})
-    voxels_across: int = field(default=512, metadata={"help": "voxels across the scene diagonal when --voxel-size is not given"})
+    voxel_size: float | None = field(default=None, metadata={"help": "TSDF voxel size in scene units (default: --voxel-footprints pixel footprints, coarsened only when the grid would not fit in memory)"})
+    voxel_footprints: float = field(default=1.5, metadata={"help": "default TSDF voxel in pixel footprints: median z / f of the depth maps at their own resolution"})
+    voxels_across: int | None = field(default=None, metadata={"help": "instead: voxel = scene diagonal (sparse points' 1-99%% box) / this"})
     trunc_voxels: float = field(default=2.0, metadata={"help": "TSDF truncation distance in voxels"})
     weight_threshold: float = field(default=1.0, metadata={"help": "min. integrated weight (views) of an extracted voxel"})
     depth_min: float = field(default=0.0, metadata={"help": "ignore depth below this (scene units)"})
@@ -133,44 +137,155 @@ def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int
     return int(n * 1.5) + 64
 
 
-def _integrate_weighted(vbg, block_coords, f: "DepthFrame", trunc: float, depth_max: float) -> None:
+def pixel_footprint(frames: list[DepthFrame]) -> float:
+    """The depth maps' pixel footprint on the surfaces the cameras look at, in scene units: per view the
+    median ``z / f`` of the valid pixels of its central window (half the width and height; the whole map when
+    that window has under 5% valid pixels), with ``f`` of the depth map's own intrinsics; the median over
+    views. Far background at the image borders and outlying sparse points do not move it."""
+    per_view = []
+    for f in frames:
+        H, W = f.depth.shape
+        centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
+        z = centre[centre > 0]
+        if z.size < 0.05 * centre.size:
+            z = f.depth[f.depth > 0]
+        if z.size:
+            intr = f.view.intrinsics
+            per_view.append(float(np.median(z)) / (0.5 * (intr.fx + intr.fy)))
+    if not per_view:
+        raise NoDepthError("no valid depth in any view: nothing to fuse")
+    return float(np.median(per_view))
+
+
+def _grid_bytes(frames: list[DepthFrame], voxel: float, trunc_voxels: float) -> tuple[int, int]:
+    n_blocks = estimate_blocks(frames, voxel, trunc_voxels * voxel)
+    return n_blocks, n_blocks * _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # hash map and extraction buffers
+
+
+def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
+                    sparse_points: np.ndarray | None = None) -> tuple[float, int]:
+    """The TSDF voxel size and the estimated number of voxel blocks.
+
+    ``cfg.voxel_size`` when given (refused, naming the memory it needs, when the grid would not fit);
+    else ``cfg.voxel_footprints`` pixel footprints (``pixel_footprint``), or the scene diagonal /
+    ``cfg.voxels_across`` when that is set. An automatic voxel is coarsened, with a warning stating the voxel
+    chosen, only when its grid would exceed ``cfg.memory_limit_gb`` (default 60% of the available memory)."""
+    limit = cfg.memory_limit_gb * (1 << 30) if cfg.memory_limit_gb else 0.6 * _available_bytes()
+    if cfg.voxel_size is not None:
+        voxel = float(cfg.voxel_size)
+        if not voxel > 0:
+            raise BadArgumentError(f"voxel size: expected > 0, got {voxel}")
+        n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+        if need > limit:
+            raise BadArgumentError(f"voxel size {voxel:.4g} needs about {need / 2**30:.1f} GB for {n_blocks} voxel "
+                                   f"blocks, more than the {limit / 2**30:.1f} GB allowed; use a larger --voxel-size")
+        return voxel, n_blocks
+    if cfg.voxels_across:
+        voxel = scene_diagonal(frames, sparse_points) / cfg.voxels_across
+    else:
+        if not cfg.voxel_footprints > 0:
+            raise BadArgumentError(f"voxel footprints: expected > 0, got {cfg.voxel_footprints}")
+        voxel = cfg.voxel_footprints * pixel_footprint(frames)
+    if not voxel > 0:
+        raise NoDepthError("the depth maps give no scale (zero footprint): nothing to fuse")
+    first = voxel
+    n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+    for _ in range(30):
+        if need <= limit:
+            break
+        # the blocks cover surfaces: their count falls about with the square of the voxel
+        voxel *= max(1.1, 1.05 * np.sqrt(need / limit))
+        n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+    else:
+        raise BadArgumentError(f"no voxel size up to {voxel:.4g} fits the grid in {limit / 2**30:.1f} GB; "
+                               "set --memory-limit-gb or --voxel-size")
+    if voxel != first:
+        log.warning("tsdf: a %.4g voxel would need more than the %.1f GB allowed; coarsened to voxel %.4g "
+                    "(%d blocks, about %.1f GB; --voxel-size or --memory-limit-gb to choose)", first,
+                    limit / 2**30, voxel, n_blocks, need / 2**30)
+    return voxel, n_blocks
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trunc, depth_max,
+                          depth, weight_map, color_img, tsdf, weight, color):  # pragma: no cover - compiled
+    """One pass over the voxels of the given blocks: project each voxel centre, look up its pixel (nearest,
+    pixel (0, 0) = centre of the top-left pixel) and fold ``weight_map[pixel]`` x the truncated SDF into the
+    running weighted mean (Open3D's update rule with a per-pixel weight instead of 1). Blocks are distinct,
+    so the parallel loop over blocks writes disjoint voxels. Storage layout as Open3D's: voxel (x, y, z) of
+    block ``b`` at ``(b * res + z) * res + y) * res + x``; voxel world position = integer index * voxel."""
+    H, W = depth.shape
+    res = 16
+    inv_trunc = 1.0 / trunc
+    for i in prange(block_keys.shape[0]):
+        base = np.int64(buf_idx[i]) * res * res * res
+        x0 = np.float64(block_keys[i, 0]) * res
+        y0 = np.float64(block_keys[i, 1]) * res
+        z0 = np.float64(block_keys[i, 2]) * res
+        for zv in range(res):
+            Z = (z0 + zv) * voxel
+            for yv in range(res):
+                Y = (y0 + yv) * voxel
+                # camera coordinates at x = 0 of this row, then a step along x per voxel
+                px = R[0, 1] * Y + R[0, 2] * Z + t[0]
+                py = R[1, 1] * Y + R[1, 2] * Z + t[1]
+                pz = R[2, 1] * Y + R[2, 2] * Z + t[2]
+                row = base + (zv * res + yv) * res
+                for xv in range(res):
+                    X = (x0 + xv) * voxel
+                    zc = R[2, 0] * X + pz
+                    if zc <= 0.0:
+                        continue
+                    xc = R[0, 0] * X + px
+                    yc = R[1, 0] * X + py
+                    u = np.floor(fx * xc / zc + cx + 0.5)
+                    v = np.floor(fy * yc / zc + cy + 0.5)
+                    if u < 0.0 or v < 0.0 or u >= W or v >= H:
+                        continue
+                    ui = np.int64(u)
+                    vi = np.int64(v)
+                    d = depth[vi, ui]
+                    if d <= 0.0 or d >= depth_max:
+                        continue
+                    sdf = d - zc
+                    if sdf < -trunc:
+                        continue
+                    w_new = weight_map[vi, ui]
+                    if w_new <= 0.0:
+                        continue
+                    if sdf > trunc:
+                        sdf = trunc
+                    li = row + xv
+                    w_old = weight[li]
+                    w_sum = w_old + w_new
+                    inv = 1.0 / w_sum
+                    tsdf[li] = (tsdf[li] * w_old + sdf * inv_trunc * w_new) * inv
+                    for c in range(3):
+                        color[li, c] = (color[li, c] * w_old + color_img[vi, ui, c] * w_new) * inv
+                    weight[li] = w_sum
+
+
+def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc: float, depth_max: float) -> None:
     """TSDF integration with a per-pixel weight (the confidence map), on the grid's own voxel storage: Open3D's
-    ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF."""
+    ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF
+    (and of the colour, 0..255, mid-grey where the frame has none)."""
     hm = vbg.hashmap()
     hm.activate(block_coords)
-    buf, _ = hm.find(block_coords)
-    xyz, vidx = vbg.voxel_coordinates_and_flattened_indices(buf)
-    idx = vidx.numpy().ravel()
-    # millions of voxels per view: a float32 pinhole projection here (tsdf_fuse refuses distorted cameras),
-    # rather than the validating float64 ``cameras.project`` (measured 40% slower on the whole fusion)
-    T = f.view.cam_from_world
-    Xc = xyz.numpy() @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
-    z = Xc[:, 2]
+    buf, _ = hm.find(block_coords)  # after activate: the storage may have been reallocated
+    T = np.ascontiguousarray(f.view.cam_from_world, np.float64)
     intr = f.view.intrinsics
-    H, W = f.depth.shape
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.round(intr.fx * Xc[:, 0] / z + intr.cx)
-        v = np.round(intr.fy * Xc[:, 1] / z + intr.cy)
-    ok = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    ui, vi = u[ok].astype(np.int64), v[ok].astype(np.int64)
-    d = f.depth[vi, ui]
-    sdf = d - z[ok]
-    good = (d > 0) & (d < depth_max) & (sdf >= -trunc)
-    w_new = f.confidence[vi, ui][good].astype(np.float32)
-    keep = w_new > 0
-    sel = idx[ok][good][keep]
-    w_new = w_new[keep]
-    sdf_n = np.minimum(sdf[good][keep], trunc) / trunc
+    color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
     tsdf = vbg.attribute("tsdf").numpy().reshape(-1)
     weight = vbg.attribute("weight").numpy().reshape(-1)
-    color = vbg.attribute("color").numpy().reshape(-1, 3)
-    w_old = weight[sel]
-    w_sum = w_old + w_new
-    tsdf[sel] = (tsdf[sel] * w_old + sdf_n * w_new) / w_sum
-    if f.color is not None:
-        c_new = f.color[vi, ui][good][keep].astype(np.float32)  # the grid stores colour in 0..255
-        color[sel] = (color[sel] * w_old[:, None] + c_new * w_new[:, None]) / w_sum[:, None]
-    weight[sel] = w_sum
+    grid_color = vbg.attribute("color").numpy().reshape(-1, 3)
+    with warnings.catch_warnings():  # numba's note that it falls back from an old TBB to OpenMP threads
+        warnings.filterwarnings("ignore", message=".*TBB threading layer")
+        _tsdf_weighted_kernel(np.ascontiguousarray(block_coords.numpy(), np.int32),
+                              np.ascontiguousarray(buf.numpy().ravel(), np.int64), T[:3, :3].copy(), T[:3, 3].copy(),
+                              float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(voxel),
+                              float(trunc), float(depth_max), np.ascontiguousarray(f.depth, np.float32),
+                              np.ascontiguousarray(f.confidence, np.float32), np.ascontiguousarray(color, np.uint8),
+                              tsdf, weight, grid_color)
 
 
 def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
@@ -181,20 +296,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     if not frames:
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
-    voxel = cfg.voxel_size
-    if voxel is None:
-        # the scene's size / voxels_across, but not finer than the pixels' footprint on the surface
-        footprint = float(np.median([np.median(f.depth[f.depth > 0]) / f.view.intrinsics.fx for f in frames]))
-        voxel = max(scene_diagonal(frames, sparse_points) / cfg.voxels_across, 1.5 * footprint)
-    if not voxel > 0:
-        raise BadArgumentError(f"voxel size: expected > 0, got {voxel}")
+    voxel, n_blocks = tsdf_voxel_size(frames, cfg, sparse_points)
     trunc = cfg.trunc_voxels * voxel
-    n_blocks = estimate_blocks(frames, voxel, trunc)
-    need = n_blocks * _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # hash map and extraction buffers
-    limit = cfg.memory_limit_gb * (1 << 30) if cfg.memory_limit_gb else 0.6 * _available_bytes()
-    if need > limit:
-        raise BadArgumentError(f"voxel size {voxel:.4g} needs about {need / 2**30:.1f} GB for {n_blocks} voxel blocks, "
-                               f"more than the {limit / 2**30:.1f} GB allowed; use a larger --voxel-size")
     log.debug("tsdf: voxel %.5g, truncation %.5g, ~%d blocks", voxel, trunc, n_blocks)
     dev = o3c.Device("CPU:0")
     vbg = o3d.t.geometry.VoxelBlockGrid(
@@ -209,12 +312,12 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         K = o3c.Tensor(intr.K, o3c.float64)
         T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
         depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
-        color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
-        color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
         coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
         if f.confidence is not None and cfg.confidence_weights:
-            _integrate_weighted(vbg, coords, f, trunc, depth_max)
+            _integrate_weighted(vbg, coords, f, voxel, trunc, depth_max)
         else:
+            color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
+            color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
             vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
     mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
     V = mesh.vertex.positions.numpy().astype(np.float64)
@@ -368,22 +471,52 @@ def legacy_article_fuse(frames: list[DepthFrame], max_edge: float = 0.1) -> trim
 
 
 
+def depth_view(view: View, shape: tuple[int, int]) -> View:
+    """``view`` with its intrinsics scaled to a depth map of ``shape`` = (H, W) (a working resolution with
+    the camera's aspect ratio); ``view`` itself when the sizes agree."""
+    h, w = shape
+    if (h, w) == (view.intrinsics.height, view.intrinsics.width):
+        return view
+    return replace(view, intrinsics=view.intrinsics.scaled(w, h))
+
+
+def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = False) -> np.ndarray | None:
+    if img is None or img.shape[:2] == tuple(shape):
+        return img
+    import cv2
+
+    h, w = shape
+    if img.dtype == bool:
+        return cv2.resize(img.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
+
+
 def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> list[DepthFrame]:
-    """Depth frames of a ``Dataset`` (views without a depth map are skipped with a warning)."""
+    """Depth frames of a ``Dataset`` (views without a depth map are skipped with a warning).
+
+    A depth map may come at a working resolution other than its camera's (same aspect ratio, e.g. MVS at
+    1600 px for 3072 px photos): its frame then gets the camera's intrinsics scaled to the depth map
+    (``Intrinsics.scaled``), and the image and mask are resized to it."""
     frames, missing = [], []
     for v in views or dataset.views:
         if not dataset.has_depth(v):
             missing.append(v.name)
             continue
-        depth = prepare_depth(v, dataset.depth(v), cfg, dataset.mask(v), dataset.confidence(v))
+        raw = dataset.depth(v)
+        dv = depth_view(v, raw.shape)
+        conf = dataset.confidence(v)
+        if conf is not None and conf.shape != raw.shape:
+            raise InputDataError(f"view {v.name}: confidence map has shape {conf.shape}, its depth map {raw.shape}; "
+                                 "expected the same (H, W)")
+        depth = prepare_depth(dv, raw, cfg, _resize_to(dataset.mask(v), raw.shape), conf)
         if not np.count_nonzero(depth):
             log.warning("view %s: depth map has no valid pixel; skipped", v.name)
             continue
         try:
-            color = dataset.image(v)
+            color = _resize_to(dataset.image(v), raw.shape)
         except InputDataError:  # colour is optional for fusion
             color = None
-        frames.append(DepthFrame(v, depth, color, dataset.confidence(v)))
+        frames.append(DepthFrame(dv, depth, color, conf))
     if missing:
         log.warning("%d view(s) without a depth map in %s skipped: %s", len(missing), dataset.depth_dir,
                     ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
