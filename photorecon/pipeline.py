@@ -101,12 +101,14 @@ class _Stages:
 
 
 def _undistort_given(model, images_dir: Path, out: Path):
-    """Given cameras: copy (and, for distorted cameras, undistort with OpenCV) the images into OUT/images."""
+    """Given cameras: copy (and, for distorted cameras, undistort with OpenCV) the images into OUT/images.
+    An image's alpha channel (RGBA, grey + alpha) becomes OUT/masks/NAME.png (255 where alpha > 0),
+    undistorted like the image, so the depth and fusion stages use it as a mask."""
     from .cameras import View
     from .io.colmap_text import SparseModel
-    from .io.images import read_image, write_image
+    from .io.images import read_alpha, read_image, write_image
 
-    img_out = out / "images"
+    img_out, mask_out = out / "images", out / "masks"
     img_out.mkdir(parents=True, exist_ok=True)
     views = []
     for v in model.views:
@@ -121,13 +123,23 @@ def _undistort_given(model, images_dir: Path, out: Path):
         if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
             raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
+        alpha = read_alpha(src)
+        mask = None if alpha is None else np.where(alpha > 0, 255, 0).astype(np.uint8)
         intr = v.intrinsics
         if intr.has_distortion:
             dist = np.array([intr.k1, intr.k2, intr.p1, intr.p2])
             img = cv2.undistort(img, intr.K, dist, None, intr.K)
+            if mask is not None:  # same maps; outside the source image -> 0 (no data)
+                mask = np.where(cv2.undistort(mask, intr.K, dist, None, intr.K) >= 128, 255, 0).astype(np.uint8)
             intr = intr.pinhole()
         dst_name = Path(src.name).stem + ".png"
         write_image(img_out / dst_name, img)
+        mask_path = mask_out / dst_name  # the output model names the view after its image's stem
+        if mask is not None:
+            mask_out.mkdir(exist_ok=True)
+            write_image(mask_path, mask)
+        else:
+            mask_path.unlink(missing_ok=True)  # a stale mask from an earlier run with other images
         views.append(View(v.name, intr, v.cam_from_world, extra={"image_file": dst_name}))
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 

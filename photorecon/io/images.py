@@ -11,12 +11,59 @@ from .atomic import atomic_path
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """8-bit RGB (H, W, 3). Raises ``InputDataError`` naming the file if it cannot be decoded."""
+    """8-bit RGB (H, W, 3); grey images are repeated into three channels. An alpha channel (RGBA, grey +
+    alpha) is dropped and the colour kept as stored, not blended with any background: read it as a mask
+    with ``read_alpha``. Raises ``InputDataError`` naming the file if it cannot be decoded."""
     path = Path(path)
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise InputDataError(f"{path}: cannot read image (missing, corrupt or not an image)")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _png_has_alpha(path: Path) -> bool | None:
+    """From a PNG's chunk headers, without decoding pixels: whether it has an alpha channel (colour type 4,
+    grey + alpha, or 6, RGBA) or a transparency chunk (tRNS). None when the file is not a PNG."""
+    with open(path, "rb") as f:
+        if f.read(8) != b"\x89PNG\r\n\x1a\n":
+            return None
+        while True:
+            head = f.read(8)
+            if len(head) < 8:
+                return False
+            length, kind = int.from_bytes(head[:4], "big"), head[4:]
+            if kind == b"IHDR":
+                data = f.read(length)
+                if len(data) >= 10 and data[9] in (4, 6):
+                    return True
+                f.seek(4, 1)
+                continue
+            if kind == b"tRNS":
+                return True
+            if kind in (b"IDAT", b"IEND"):
+                return False
+            f.seek(length + 4, 1)  # data + CRC
+
+
+def read_alpha(path: str | Path) -> np.ndarray | None:
+    """The alpha channel (H, W) of an RGBA or grey + alpha image (uint8, or uint16 for 16-bit files), or
+    None when the image has none. PNG headers are checked first, so an image without alpha is not decoded;
+    JPEG never has alpha. Raises ``InputDataError`` naming the file if it cannot be decoded."""
+    path = Path(path)
+    if path.suffix.lower() in (".jpg", ".jpeg"):
+        return None
+    try:
+        has = _png_has_alpha(path)
+    except OSError as exc:
+        raise InputDataError(f"{path}: cannot read image ({exc.strerror or exc})") from None
+    if has is False:
+        return None
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputDataError(f"{path}: cannot read image (missing, corrupt or not an image)")
+    if img.ndim == 3 and img.shape[2] in (2, 4):
+        return np.ascontiguousarray(img[:, :, -1])
+    return None
 
 
 def write_image(path: str | Path, img: np.ndarray) -> Path:
