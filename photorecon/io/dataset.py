@@ -14,7 +14,7 @@ import numpy as np
 from ..cameras import View
 from ..errors import InputDataError
 from .colmap_text import SparseModel, read_colmap_text
-from .images import read_depth, read_image
+from .images import read_alpha, read_depth, read_image
 from .nerf import read_transforms
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
@@ -111,13 +111,23 @@ class Dataset:
         return np.load(p).astype(np.float32) if p.is_file() else None
 
     def mask(self, view: View) -> np.ndarray | None:
+        """Boolean (H, W) foreground of ``view`` (True = use the pixel), or None when it has no mask:
+        MASKS/NAME.png (or the frame's ``mask_path``) > 0 when present, else the alpha channel > 0 of its
+        image when that is RGBA or grey + alpha."""
         p = Path(view.extra["mask_path"]) if "mask_path" in view.extra else self.root / "masks" / f"{view.name}.png"
-        if not p.is_file():
-            return None
-        m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-        if m is None:
-            raise InputDataError(f"view {view.name}: mask {p} cannot be read")
+        what = "mask"
+        if p.is_file():
+            m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+            if m is None:
+                raise InputDataError(f"view {view.name}: mask {p} cannot be read")
+        else:
+            p = self.image_path(view)
+            if not p.is_file():
+                return None
+            m, what = read_alpha(p), "alpha of image"
+            if m is None:
+                return None
         if m.shape != (view.intrinsics.height, view.intrinsics.width):
-            raise InputDataError(f"view {view.name}: mask {p} is {m.shape[1]}x{m.shape[0]}, camera is "
+            raise InputDataError(f"view {view.name}: {what} {p} is {m.shape[1]}x{m.shape[0]}, camera is "
                                  f"{view.intrinsics.width}x{view.intrinsics.height}")
         return m > 0
