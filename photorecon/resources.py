@@ -27,12 +27,28 @@ def peak_bytes() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
+_open_peaks: list[list[int]] = []  # one [peak bytes seen so far] per enclosing measure() block
+
+
 @contextmanager
 def measure(record: dict, key: str):
-    """``with measure(stats, "fusion"):`` adds ``stats[key] = {"seconds": s, "peak_mb": m}``."""
+    """``with measure(stats, "fusion"):`` adds ``stats[key] = {"seconds": s, "peak_mb": m}``.
+
+    Blocks nest: an inner block resets the process peak, so it first hands the peak seen so far to the
+    blocks around it, and its own peak when it ends; an outer block reports the largest of them all.
+    """
+    now = peak_bytes()
+    for seen in _open_peaks:
+        seen[0] = max(seen[0], now)
     reset_peak()
+    mine = [0]
+    _open_peaks.append(mine)
     t0 = time.perf_counter()
     try:
         yield
     finally:
-        record[key] = {"seconds": round(time.perf_counter() - t0, 3), "peak_mb": round(peak_bytes() / 2**20, 1)}
+        _open_peaks.pop()
+        peak = max(peak_bytes(), mine[0])
+        for seen in _open_peaks:
+            seen[0] = max(seen[0], peak)
+        record[key] = {"seconds": round(time.perf_counter() - t0, 3), "peak_mb": round(peak / 2**20, 1)}

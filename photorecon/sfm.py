@@ -1,15 +1,19 @@
 """Structure from motion through pycolmap: the **only** module that imports pycolmap (its API changes
 between versions; pycolmap 4.x: ``image.cam_from_world()`` is a method).
 
-Stages, each cached in ``OUT/colmap/`` so that a re-run reuses them: ingest (oriented copies of the images)
--> SIFT extraction -> matching (exhaustive / sequential, chosen by count) -> mapping (incremental, or global)
--> largest model -> undistortion to pinhole images. Outputs in the synth layout: ``OUT/images/`` (undistorted),
-``OUT/sparse/0/`` (COLMAP text, pinhole) and ``OUT/transforms.json``.
+Stages, each a function that writes one output and returns its path (hloc's style), run by the stage runner
+(``photorecon.stages``) so that a re-run reuses a stage while its inputs and settings are unchanged:
+ingest (oriented copies of the images, ``OUT/colmap/images``) -> ``extract`` (SIFT, ``OUT/colmap/features.db``)
+-> ``match`` (exhaustive / sequential, chosen by count; ``OUT/colmap/database.db``) -> ``map`` (incremental or
+global; the largest model, ``OUT/colmap/sparse``) -> ``undistort`` to pinhole images. Outputs in the synth
+layout: ``OUT/images/`` (undistorted), ``OUT/sparse/0/`` (COLMAP text, pinhole) and ``OUT/transforms.json``.
+Stage markers (settings hash, seconds, peak memory): ``OUT/colmap/.stages/``.
 """
 from __future__ import annotations
 
 import logging
 import shutil
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,8 +23,9 @@ import numpy as np
 
 from .cameras import Intrinsics, View
 from .errors import BadArgumentError, InputDataError, SfMError
-from .io.atomic import atomic_write_json
+from .io.atomic import atomic_path, atomic_write_json
 from .io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
+from .stages import Stages, atomic_dir, fingerprint, replace_dir
 
 log = logging.getLogger("photorecon")
 
@@ -100,8 +105,6 @@ def read_colmap_binary(folder: str | Path) -> SparseModel:
 
 def write_colmap_binary(model: SparseModel, folder: str | Path) -> Path:
     """Write ``model`` as a COLMAP binary model (through a text copy that pycolmap converts)."""
-    import tempfile
-
     pycolmap = _pycolmap()
     folder = Path(folder)
     with tempfile.TemporaryDirectory() as tmp:
@@ -112,7 +115,7 @@ def write_colmap_binary(model: SparseModel, folder: str | Path) -> Path:
     return folder
 
 
-# --- the SfM stage --------------------------------------------------------------------------------------------
+# --- the SfM stages: extract -> match -> map -> undistort, each writing one output and returning its path ----
 @dataclass
 class SfMResult:
     model: SparseModel  # undistorted (pinhole) cameras + sparse points, what the depth stage uses
@@ -136,135 +139,167 @@ def _given_intrinsics(cfg: SfMConfig, width: int, height: int) -> Intrinsics | N
     return None
 
 
-def _done(path: Path) -> bool:
-    return path.is_file()
+def camera_groups(images: list, cfg: SfMConfig) -> list[dict]:
+    """One COLMAP camera per image size (and EXIF focal prior): ``[{"model", "params", "images"}]`` with
+    ``params`` in COLMAP's convention ("" lets COLMAP guess) and ``images`` the file names sharing it."""
+    groups: dict[tuple, list] = {}
+    for im in images:
+        groups.setdefault((im.width, im.height, round(im.focal_prior_px or 0, 1)), []).append(im.name)
+    cameras = []
+    for (w, h, f_prior), names in groups.items():
+        given = _given_intrinsics(cfg, w, h)
+        if given is not None:
+            if (w, h) != (given.width, given.height) and cfg.intrinsics:
+                raise InputDataError(f"{cfg.intrinsics}: intrinsics given for one image size, but "
+                                     f"{names[0]} is {w}x{h}; give images of one size")
+            model, params = "PINHOLE", given.to_colmap()[3]
+        else:
+            model, params = cfg.camera_model, []
+            if f_prior:
+                params = Intrinsics(w, h, f_prior, f_prior, (w - 1) / 2, (h - 1) / 2, model=model).to_colmap()[3]
+        cameras.append({"model": model, "params": ",".join(repr(float(p)) for p in params), "images": names})
+    return cameras
 
 
-def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False) -> SfMResult:
-    """Run SfM on ``images_dir`` into ``out`` (see the module docstring). Cached stages are reused unless
-    ``force``. Raises ``NoImagesError`` / ``SfMError`` with one clear line on failure."""
-    from .ingest import VIDEO_SUFFIXES, ingest_folder, video_frames
-    from .io.nerf import write_transforms
-
+def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfig) -> Path:
+    """SIFT features of the images in ``cameras`` (see ``camera_groups``) into a new COLMAP database."""
     pycolmap = _pycolmap()
-    cfg = cfg or SfMConfig()
-    _quiet(pycolmap)
-    out = Path(out)
-    work = out / "colmap"
-    if force and work.exists():
-        shutil.rmtree(work)
-    work.mkdir(parents=True, exist_ok=True)
-    secs: dict[str, float] = {}
-    cached: list[str] = []
-    t0 = time.perf_counter()
-    src = Path(images_dir)
-    if src.is_file() and src.suffix.lower() in VIDEO_SUFFIXES:
-        ing = video_frames(src, work / "images", cfg.video_every)
-    else:
-        ing = ingest_folder(images_dir, work / "images", min_images=1)
-    if len(ing.images) < 2:
-        raise SfMError(f"{images_dir}: only one readable image ({ing.images[0].name}); SfM needs at least 2 "
-                       "overlapping photos")
-    secs["ingest"] = time.perf_counter() - t0
-    names = [im.name for im in ing.images]
-    pycolmap.set_random_seed(cfg.seed)
-    db = work / "database.db"
-
-    # 1. features, one camera per image size (and focal prior)
-    t0 = time.perf_counter()
-    if _done(work / "features.done"):
-        cached.append("features")
-    else:
-        if db.exists():
-            db.unlink()
-        groups: dict[tuple, list] = {}
-        for im in ing.images:
-            groups.setdefault((im.width, im.height, round(im.focal_prior_px or 0, 1)), []).append(im)
-        for (w, h, f_prior), group in groups.items():
+    with atomic_path(database) as tmp:
+        for cam in cameras:
             reader = pycolmap.ImageReaderOptions()
-            given = _given_intrinsics(cfg, w, h)
-            if given is not None:
-                if (w, h) != (given.width, given.height) and cfg.intrinsics:
-                    raise InputDataError(f"{cfg.intrinsics}: intrinsics given for one image size, but "
-                                         f"{group[0].name} is {w}x{h}; give images of one size")
-                reader.camera_model = "PINHOLE"
-                reader.camera_params = ",".join(repr(float(p)) for p in given.to_colmap()[3])
-            else:
-                reader.camera_model = cfg.camera_model
-                if f_prior:
-                    f = float(f_prior)
-                    prior = Intrinsics(w, h, f, f, (w - 1) / 2, (h - 1) / 2, model=cfg.camera_model)
-                    reader.camera_params = ",".join(repr(float(p)) for p in prior.to_colmap()[3])
+            reader.camera_model = cam["model"]
+            reader.camera_params = cam["params"]
             ext = pycolmap.FeatureExtractionOptions()
             ext.max_image_size = cfg.max_image_size
             ext.sift.max_num_features = cfg.max_features
             ext.sift.estimate_affine_shape = cfg.affine_sift
             ext.sift.domain_size_pooling = cfg.dsp_sift
             ext.num_threads = cfg.threads
-            pycolmap.extract_features(str(db), str(work / "images"), image_names=[g.name for g in group],
+            pycolmap.extract_features(str(tmp), str(images_dir), image_names=cam["images"],
                                       camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                       extraction_options=ext, device=pycolmap.Device.cpu)
-        (work / "features.done").write_text("ok\n")
-    secs["extraction"] = time.perf_counter() - t0
+    return database
 
-    # 2. matching
-    t0 = time.perf_counter()
-    matcher = cfg.matcher
-    if matcher == "auto":
-        matcher = "exhaustive" if len(names) <= cfg.exhaustive_max else "sequential"
-    if _done(work / "matches.done"):
-        cached.append("matching")
-    else:
+
+def choose_matcher(cfg: SfMConfig, num_images: int) -> str:
+    if cfg.matcher != "auto":
+        return cfg.matcher
+    return "exhaustive" if num_images <= cfg.exhaustive_max else "sequential"
+
+
+def match(features: Path, database: Path, matcher: str, cfg: SfMConfig) -> Path:
+    """Match the features of the ``features`` database (``matcher``: exhaustive or sequential) into a copy of
+    it, ``database``."""
+    pycolmap = _pycolmap()
+    with atomic_path(database) as tmp:
+        shutil.copyfile(features, tmp)
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.threads
         if matcher == "exhaustive":
-            pycolmap.match_exhaustive(str(db), matching_options=mopt, device=pycolmap.Device.cpu)
+            pycolmap.match_exhaustive(str(tmp), matching_options=mopt, device=pycolmap.Device.cpu)
         else:
             popt = pycolmap.SequentialPairingOptions()
             popt.overlap = cfg.sequential_overlap
             popt.quadratic_overlap = True
-            pycolmap.match_sequential(str(db), matching_options=mopt, pairing_options=popt,
+            pycolmap.match_sequential(str(tmp), matching_options=mopt, pairing_options=popt,
                                       device=pycolmap.Device.cpu)
-        (work / "matches.done").write_text(matcher + "\n")
-    secs["matching"] = time.perf_counter() - t0
+    return database
 
-    # 3. mapping; keep the largest model
-    t0 = time.perf_counter()
-    model_dir = work / "sparse"
-    fixed = _given_intrinsics(cfg, ing.images[0].width, ing.images[0].height) is not None and not cfg.refine_intrinsics
-    if _done(work / "mapping.done"):
-        cached.append("mapping")
-        rec = pycolmap.Reconstruction(str(model_dir))
-    else:
-        if model_dir.exists():
-            shutil.rmtree(model_dir)
-        runs = work / "mapper_runs"
-        if runs.exists():
-            shutil.rmtree(runs)
-        runs.mkdir()
+
+def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool) -> Path:  # noqa: A001 (hloc's step name; the builtin is not used here)
+    """Incremental (or global) mapping; writes the largest model, COLMAP binary, to ``model_dir``."""
+    pycolmap = _pycolmap()
+    pycolmap.set_random_seed(cfg.seed)
+    with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp:
         if cfg.mapper == "global":
             gopt = pycolmap.GlobalPipelineOptions()
             gopt.random_seed = cfg.seed
             gopt.num_threads = cfg.threads
-            recs = pycolmap.global_mapping(str(db), str(work / "images"), str(runs), gopt)
+            recs = pycolmap.global_mapping(str(database), str(images_dir), runs, gopt)
         else:
             opt = pycolmap.IncrementalPipelineOptions()
             opt.random_seed = cfg.seed
             opt.num_threads = cfg.threads
-            if fixed:
+            if fixed_intrinsics:
                 opt.ba_refine_focal_length = False
                 opt.ba_refine_principal_point = False
                 opt.ba_refine_extra_params = False
-            recs = pycolmap.incremental_mapping(str(db), str(work / "images"), str(runs), opt)
+            recs = pycolmap.incremental_mapping(str(database), str(images_dir), runs, opt)
         if not recs:
-            raise SfMError(f"0 of {len(names)} images registered: no two images could be matched into a model "
+            n = sum(1 for _ in images_dir.iterdir())
+            raise SfMError(f"0 of {n} images registered: no two images could be matched into a model "
                            "(do the photos overlap? are they all identical?)")
-        rec = max(recs.values(), key=lambda r: r.num_reg_images())
-        model_dir.mkdir()
-        rec.write_binary(str(model_dir))
-        shutil.rmtree(runs, ignore_errors=True)
-        (work / "mapping.done").write_text("ok\n")
-    secs["mapping"] = time.perf_counter() - t0
+        max(recs.values(), key=lambda r: r.num_reg_images()).write_binary(str(tmp))
+    return model_dir
+
+
+def undistort(model_dir: Path, images_dir: Path, out: Path) -> Path:
+    """Undistort the model's images to pinhole cameras: ``out/images``, ``out/sparse/0`` (COLMAP text) and
+    ``out/transforms.json``; returns ``out/sparse/0``."""
+    from .io.nerf import write_transforms
+
+    pycolmap = _pycolmap()
+    with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
+        pycolmap.undistort_images(und, str(model_dir), str(images_dir))
+        model = _to_sparse(pycolmap.Reconstruction(f"{und}/sparse"))
+        replace_dir(f"{und}/images", out / "images")
+    write_colmap_text(model, out / "sparse" / "0")
+    write_transforms(model.views, out / "transforms.json", world="none")
+    return out / "sparse" / "0"
+
+
+def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
+    """Oriented copies of the photos (or every k-th video frame) in ``work_images``; what SfM needs of them."""
+    from .ingest import VIDEO_SUFFIXES, ingest_folder, video_frames
+
+    with atomic_dir(work_images) as tmp:
+        if src.is_file() and src.suffix.lower() in VIDEO_SUFFIXES:
+            ing = video_frames(src, tmp, video_every)
+        else:
+            ing = ingest_folder(src, tmp, min_images=1)
+    return {"images": [[im.name, im.width, im.height, im.focal_prior_px] for im in ing.images],
+            "skipped": ing.skipped}
+
+
+def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False) -> SfMResult:
+    """Run SfM on ``images_dir`` (a folder or a video) into ``out`` (see the module docstring).
+
+    Each stage is reused from ``out/colmap`` while its inputs (file names, sizes and times) and settings are
+    unchanged, unless ``force``. Raises ``NoImagesError`` / ``SfMError`` with one clear line on failure."""
+    from .ingest import IngestedImage
+
+    pycolmap = _pycolmap()
+    cfg = cfg or SfMConfig()
+    _quiet(pycolmap)
+    src, out = Path(images_dir), Path(out)
+    work = out / "colmap"
+    stages = Stages(work / ".stages", force)
+
+    ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None}
+    ing = stages.run("ingest", ingest_params, lambda: _ingest(src, work / "images", cfg.video_every),
+                     outputs=[work / "images"])
+    images = [IngestedImage(name, src if src.is_file() else src / name, w, h, f) for name, w, h, f in ing["images"]]
+    if len(images) < 2:
+        raise SfMError(f"{images_dir}: only one readable image ({images[0].name}); SfM needs at least 2 "
+                       "overlapping photos")
+    names = [im.name for im in images]
+
+    cameras = camera_groups(images, cfg)
+    sift = {k: getattr(cfg, k) for k in ("max_image_size", "max_features", "affine_sift", "dsp_sift")}
+    features = work / "features.db"
+    stages.run("extraction", {"cameras": cameras, "sift": sift},
+               lambda: extract(work / "images", features, cameras, cfg), outputs=[features])
+
+    matcher = choose_matcher(cfg, len(names))
+    database = work / "database.db"
+    stages.run("matching", {"matcher": matcher, "overlap": cfg.sequential_overlap if matcher == "sequential" else None},
+               lambda: match(features, database, matcher, cfg), outputs=[database])
+
+    fixed = _given_intrinsics(cfg, images[0].width, images[0].height) is not None and not cfg.refine_intrinsics
+    model_dir = work / "sparse"
+    stages.run("mapping", {"mapper": cfg.mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
+               lambda: map(database, work / "images", model_dir, cfg, fixed), outputs=[model_dir])
+    rec = pycolmap.Reconstruction(str(model_dir))
     reg_names = sorted(rec.images[i].name for i in rec.reg_image_ids())
     unreg = [n for n in names if n not in set(reg_names)]
     if len(reg_names) < max(2, cfg.min_registered * len(names)):
@@ -274,30 +309,14 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     if unreg:
         log.warning("%d of %d images not registered: %s", len(unreg), len(names), ", ".join(unreg))
 
-    # 4. undistortion -> OUT/images, OUT/sparse/0 (text), OUT/transforms.json
-    t0 = time.perf_counter()
-    und = work / "undistorted"
-    if _done(work / "undistort.done") and (out / "sparse" / "0" / "cameras.txt").is_file():
-        cached.append("undistortion")
-        model = read_colmap_text(out / "sparse" / "0")
-    else:
-        if und.exists():
-            shutil.rmtree(und)
-        pycolmap.undistort_images(str(und), str(model_dir), str(work / "images"))
-        model = _to_sparse(pycolmap.Reconstruction(str(und / "sparse")))
-        img_out = out / "images"
-        if img_out.exists():
-            shutil.rmtree(img_out)
-        shutil.move(str(und / "images"), str(img_out))
-        write_colmap_text(model, out / "sparse" / "0")
-        write_transforms(model.views, out / "transforms.json", world="none")
-        shutil.rmtree(und, ignore_errors=True)
-        (work / "undistort.done").write_text("ok\n")
-    secs["undistortion"] = time.perf_counter() - t0
+    stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out),
+               outputs=[out / "images", out / "sparse" / "0", out / "transforms.json"])
+    model = read_colmap_text(out / "sparse" / "0")
+    secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,
-                                                 "skipped_files": ing.skipped, "matcher": matcher,
-                                                 "seconds": secs, "cached": cached})
-    return SfMResult(model, reg_names, unreg, secs, cached)
+                                                 "skipped_files": ing["skipped"], "matcher": matcher,
+                                                 "cameras": cameras, "seconds": secs, "cached": stages.cached})
+    return SfMResult(model, reg_names, unreg, secs, stages.cached)
 
 
 def plain_pycolmap(images_dir: str | Path, work: str | Path) -> dict:

@@ -41,7 +41,7 @@ def test_sfm_registers_all_and_matches_truth(ring16, tmp_path):
     assert tree_hash(ring16 / "images") == before
     # a re-run reuses every stage
     again = run_sfm(ring16 / "images", out, SfMConfig())
-    assert set(again.cached) >= {"features", "matching", "mapping", "undistortion"}
+    assert again.cached == ["ingest", "extraction", "matching", "mapping", "undistortion"]
 
 
 @pytest.mark.slow
@@ -243,3 +243,81 @@ def test_sfm_from_a_video(ring16, tmp_path):
     _write_video(tmp_path / "orbit.avi", frames)
     assert main(["-q", "sfm", str(tmp_path / "orbit.avi"), "-o", str(tmp_path / "out"), "--video-every", "1"]) == 0
     assert len(read_model(tmp_path / "out" / "sparse" / "0").views) >= 14
+
+
+@pytest.fixture(scope="module")
+def ring_tiny(tmp_path_factory):
+    """16 ring views of the blob at 240x180: SfM in about 3 s."""
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp("ring_tiny")
+    synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=240, height=180, points=300, seed=5), out,
+               overwrite=True)
+    return out
+
+
+def _database(out):
+    """(camera models, COLMAP-convention parameters of the first camera, matched image pairs) of OUT's database."""
+    import pycolmap
+
+    db = pycolmap.Database.open(str(out / "colmap" / "database.db"))
+    try:
+        cams = db.read_all_cameras()
+        return {c.model.name for c in cams}, list(cams[0].params), db.num_matched_image_pairs()
+    finally:
+        db.close()
+
+
+@pytest.mark.slow
+def test_sfm_caches_are_keyed_on_their_settings(ring_tiny, tmp_path, capsys):
+    """Issue 12: a re-run with other intrinsics, camera model or matcher recomputes what they change (and what
+    follows), and reuses the rest."""
+    out = tmp_path / "out"
+
+    def sfm(*flags):
+        assert main(["-q", "sfm", str(ring_tiny / "images"), "-o", str(out), *flags]) == 0
+        printed = capsys.readouterr().out
+        return printed.split("(reused: ")[1].split(")")[0].split(", ") if "(reused: " in printed else []
+
+    assert sfm() == []
+    models, _, pairs = _database(out)
+    assert models == {"SIMPLE_RADIAL"} and pairs == 16 * 15 // 2  # auto -> exhaustive for 16 images
+    assert sfm() == ["ingest", "extraction", "matching", "mapping", "undistortion"]
+
+    # given intrinsics: the database camera and the written cameras are those, not the earlier estimate
+    assert sfm("--fx", "300", "--fy", "310", "--cx", "119.5", "--cy", "89.5") == ["ingest"]
+    models, params, _ = _database(out)
+    assert models == {"PINHOLE"} and params == pytest.approx([300, 310, 120, 90])  # COLMAP: centre + 0.5
+    cams = (out / "sparse" / "0" / "cameras.txt").read_text()
+    for v in read_colmap_text(out / "sparse" / "0").views:
+        assert (v.intrinsics.fx, v.intrinsics.fy, v.intrinsics.cx, v.intrinsics.cy) == pytest.approx(
+            (300, 310, 119.5, 89.5))
+    assert sfm("--fx", "300", "--fy", "310", "--cx", "119.5", "--cy", "89.5") != ["ingest"]  # all reused now
+
+    # another camera model to self-calibrate: extraction and everything after it run again
+    assert sfm("--camera-model", "PINHOLE") == ["ingest"]
+    models, params, _ = _database(out)
+    assert models == {"PINHOLE"} and params[0] != pytest.approx(300)
+    assert (out / "sparse" / "0" / "cameras.txt").read_text() != cams
+
+    # another matcher: the features are reused, the matches are new
+    assert sfm("--camera-model", "PINHOLE", "--matcher", "sequential", "--sequential-overlap", "3") == \
+        ["ingest", "extraction"]
+    _, _, seq_pairs = _database(out)
+    assert seq_pairs < pairs
+    assert json.loads((out / "colmap" / "sfm_report.json").read_text())["matcher"] == "sequential"
+    marker = json.loads((out / "colmap" / ".stages" / "matching.json").read_text())
+    assert marker["params"] == {"matcher": "sequential", "overlap": 3} and marker["seconds"] > 0
+
+
+@pytest.mark.slow
+def test_sfm_reruns_when_the_images_change(ring_tiny, tmp_path):
+    src = tmp_path / "photos"
+    shutil.copytree(ring_tiny / "images", src)
+    out = tmp_path / "out"
+    assert len(run_sfm(src, out, SfMConfig()).registered) == 16
+    (src / "view_015.png").unlink()
+    res = run_sfm(src, out, SfMConfig())
+    assert res.cached == [] and len(res.registered) == 15
+    assert not (out / "colmap" / "images" / "view_015.png").exists()
+    assert sorted(p.name for p in (out / "images").iterdir()) == [f"view_{i:03d}.png" for i in range(15)]
