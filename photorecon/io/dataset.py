@@ -16,13 +16,15 @@ from ..errors import InputDataError
 from .colmap_text import SparseModel, read_colmap_text
 from .images import read_alpha, read_depth, read_image
 from .nerf import read_transforms
+from .strecha import read_strecha
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 
 def read_model(path: str | Path) -> SparseModel:
-    """Cameras (and sparse points, if any) from a COLMAP folder (text or binary), a dataset folder holding
-    ``sparse/0`` or ``transforms.json``, or a transforms.json file."""
+    """Cameras (and sparse points, if any) from a COLMAP folder (text or binary), a folder of Strecha
+    ``*.camera`` files, a dataset folder holding ``sparse/0``, ``transforms.json`` or ``gt_dense_cameras/``
+    (Strecha), or a transforms.json file (checked in this order)."""
     path = Path(path)
     if path.is_file() and path.suffix == ".json":
         return SparseModel(read_transforms(path))
@@ -39,7 +41,11 @@ def read_model(path: str | Path) -> SparseModel:
             return read_model(path / sub)
     if (path / "transforms.json").is_file():
         return SparseModel(read_transforms(path / "transforms.json"))
-    raise InputDataError(f"{path}: no cameras found; expected sparse/0/ (COLMAP) or transforms.json")
+    for folder in (path, path / "gt_dense_cameras"):
+        if folder.is_dir() and any(p.name.endswith(".camera") for p in folder.iterdir()):
+            return read_strecha(folder)
+    raise InputDataError(f"{path}: no cameras found; expected sparse/0/ (COLMAP), transforms.json or "
+                         "Strecha *.camera files (gt_dense_cameras/)")
 
 
 @dataclass
