@@ -27,10 +27,9 @@ import numpy as np
 from .cameras import View
 from .errors import BadArgumentError, InputDataError, OutputError
 from .io.colmap_text import SparseModel
+from .io.dataset import IMAGE_SUFFIXES
 
 log = logging.getLogger("photorecon")
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 
 @dataclass
@@ -39,7 +38,7 @@ class TriangulateConfig:
 
     max_image_size: int = field(default=1600, metadata={"help": "SIFT works on images downscaled to this size"})
     max_features: int = field(default=8192, metadata={"help": "SIFT features per image"})
-    affine_sift: bool = field(default=False, metadata={"help": "estimate affine feature shapes (slower; helps wide baselines)"})
+    affine_sift: bool = field(default=False, metadata={"help": "estimate affine feature shapes (wide baselines; measured on walnut 1: 323 -> 524 points, 27 -> 51 s)"})
     matcher: Literal["auto", "exhaustive", "overlap"] = field(default="auto", metadata={
         "help": "auto: exhaustive up to exhaustive_max images, else only pairs whose frusta overlap"})
     exhaustive_max: int = field(default=40, metadata={"help": "largest image count matched exhaustively by auto"})
