@@ -17,14 +17,14 @@ log = logging.getLogger("photorecon")
 # --- configs -> argparse -----------------------------------------------------------------------------------
 def add_config_arguments(parser: argparse.ArgumentParser, config_cls, skip: tuple[str, ...] = (),
                          defaults=None) -> None:
-    """One ``--flag`` per dataclass field of ``config_cls``; help from ``field(metadata={'help': ...})``,
+    """One ``--flag`` per dataclass field of ``config_cls`` (or ``metadata['flag']``); help from ``field(metadata={'help': ...})``,
     choices from ``Literal`` annotations, ``--flag/--no-flag`` for booleans. Default values come from the
     instance ``defaults`` when given (a stage whose caller overrides a config default), else the class."""
     hints = typing.get_type_hints(config_cls)
     for f in dataclasses.fields(config_cls):
         if f.name in skip or f.metadata.get("cli") is False:
             continue
-        flag = "--" + f.name.replace("_", "-")
+        flag = f.metadata.get("flag") or "--" + f.name.replace("_", "-")
         tp = hints[f.name]
         if defaults is not None:
             default = getattr(defaults, f.name)

@@ -25,13 +25,14 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
 
 from ..cameras import View, backproject_depth, invert_rigid, project, transform_points
 from ..errors import NoDepthError
-from ..io.atomic import atomic_write_json
+from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
 from ..progress import bar
 
@@ -42,16 +43,28 @@ log = logging.getLogger("photorecon")
 class MVSConfig:
     """Settings of the multi-view stereo stage (``photorecon mvs``)."""
 
-    n_sources: int = field(default=4, metadata={"help": "source views per reference view"})
-    n_depths: int = field(default=128, metadata={"help": "depth hypotheses (planes, uniform in inverse depth)"})
-    window: int = field(default=7, metadata={"help": "ZNCC window size in pixels (odd)"})
-    best_k: int = field(default=2, metadata={"help": "aggregate the best k source scores per pixel"})
-    max_size: int = field(default=640, metadata={"help": "working resolution: longest image side in pixels"})
-    min_confidence: float = field(default=0.5, metadata={"help": "drop depths whose aggregated ZNCC is below this"})
-    min_consistent: int = field(default=1, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
+    method: Literal["patchmatch", "sweep"] = field(default="patchmatch", metadata={"flag": "--mvs", "help": "patchmatch: per-pixel depth and normal (ACMH/ACMM, the default); sweep: fronto-parallel plane sweep (a fast preview)"})
+    n_sources: int = field(default=8, metadata={"help": "source views per reference view"})
+    max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)"})
+    min_confidence: float = field(default=0.3, metadata={"help": "drop depths whose confidence (1 - matching cost) is below this"})
+    min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
     reproj_px: float = field(default=1.0, metadata={"help": "geometric filter: max reprojection error, pixels"})
     rel_depth: float = field(default=0.01, metadata={"help": "geometric filter: max relative depth difference"})
     min_angle_deg: float = field(default=2.0, metadata={"help": "view selection: minimum triangulation angle"})
+    pm_levels: int = field(default=3, metadata={"help": "patchmatch: pyramid levels (each halves the image)"})
+    pm_iterations: int = field(default=5, metadata={"help": "patchmatch: iterations at the coarsest level"})
+    pm_fine_iterations: int = field(default=2, metadata={"help": "patchmatch: iterations at each finer level"})
+    pm_final_iterations: int = field(default=1, metadata={"help": "patchmatch: extra geometric-consistency iterations at full working resolution"})
+    pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius in pixels"})
+    pm_stride: int = field(default=2, metadata={"help": "patchmatch: NCC window sampled every this many pixels"})
+    pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: bilateral NCC weight's grey-level sigma (grey in 0..1)"})
+    geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
+    geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (pixels of reprojection error)"})
+    triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed, for view selection and depth ranges"})
+    pm_seed: int = field(default=0, metadata={"help": "patchmatch: random seed (results are deterministic for a seed)"})
+    n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)"})
+    window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)"})
+    best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel"})
 
 
 @dataclass
@@ -60,6 +73,7 @@ class DepthResult:
     confidence: np.ndarray  # (h, w) float32 in [0, 1]
     view: View  # the reference view at working resolution
     sources: list[str]
+    normal: np.ndarray | None = None  # (h, w, 3) float32 unit normals, reference camera frame (patchmatch)
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -69,7 +83,7 @@ def _gray(img: np.ndarray) -> np.ndarray:
 
 def _working_view(view: View, max_size: int) -> View:
     W, H = view.intrinsics.size
-    s = min(1.0, max_size / max(W, H))
+    s = min(1.0, max_size / max(W, H)) if max_size > 0 else 1.0
     if s >= 1.0:
         return view
     intr = view.intrinsics.scaled(int(round(W * s)), int(round(H * s)))
@@ -262,8 +276,23 @@ def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dic
     return counts
 
 
+def _triangulated(dataset):
+    """The dataset's model with sparse points triangulated from its images with the cameras held fixed
+    (given poses come without points); the model unchanged, with a warning, when that fails."""
+    import tempfile
+
+    from ..triangulate import triangulate_given
+
+    with tempfile.TemporaryDirectory(prefix="photorecon_tri_") as work:
+        model = triangulate_given(dataset.root / "images", dataset.model, work)
+    if len(model.points):
+        log.info("mvs: %d sparse points triangulated with the given cameras", len(model.points))
+    return model
+
+
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None) -> dict:
-    """MVS for every view of a ``Dataset``; writes depth maps (camera resolution), confidences and previews
+    """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
+    with the same aspect ratio when the images exceed ``max_size``), confidences, normals and previews
     to ``out_dir`` (default: DATASET/depth). Returns a report dict. Raises ``NoDepthError`` if no view
     yields depth."""
     cfg = cfg or MVSConfig()
@@ -285,10 +314,13 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     results: dict[str, DepthResult] = {}
     skipped: dict[str, str] = {}
     t0 = time.perf_counter()
+    if len(model.points) == 0 and cfg.triangulate:
+        model = _triangulated(dataset)
     no_points = len(model.points) == 0
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
-    for v in bar(model.views, desc="mvs depth"):
+    plan: list[tuple[View, list[View], tuple[float, float]]] = []
+    for v in model.views:
         rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v)
         if rng is None:
             skipped[v.name] = "no sparse points (or a degenerate depth range) in this view"
@@ -299,11 +331,40 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             skipped[v.name] = "no source view with enough shared points and baseline"
             log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
             continue
-        ref_img, ref_w = image(v)
-        src = [image(s) for s in srcs]
-        depth, conf = plane_sweep(ref_img, ref_w, src, rng[0], rng[1], cfg)
-        depth[conf < cfg.min_confidence] = 0
-        results[v.name] = DepthResult(depth, conf, ref_w, [s.name for s in srcs])
+        plan.append((v, srcs, rng))
+    if cfg.method == "sweep":
+        for v, srcs, rng in bar(plan, desc="mvs depth (sweep)"):
+            ref_img, ref_w = image(v)
+            src = [image(s) for s in srcs]
+            depth, conf = plane_sweep(ref_img, ref_w, src, rng[0], rng[1], cfg)
+            depth[conf < cfg.min_confidence] = 0
+            results[v.name] = DepthResult(depth, conf, ref_w, [s.name for s in srcs])
+    elif plan:
+        from .patchmatch import PMJob, patchmatch_all
+
+        views = {v.name: v for v in model.views}
+
+        def level_image(name: str, lv: View) -> np.ndarray:
+            g, _ = image(views[name])
+            if g.shape != (lv.intrinsics.height, lv.intrinsics.width):
+                g = cv2.resize(g, lv.intrinsics.size, interpolation=cv2.INTER_AREA)
+            return g
+
+        jobs = [PMJob(image(v)[1], [s.name for s in srcs], rng[0], rng[1], model.points_seen_by(v.name))
+                for v, srcs, rng in plan]
+        for name, (depth, normal, cost, wv, _secs) in patchmatch_all(jobs, level_image, cfg).items():
+            conf = np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32)
+            depth = depth.copy()
+            depth[(conf < cfg.min_confidence) | ~np.isfinite(depth)] = 0
+            results[name] = DepthResult(depth, conf, wv, next(j.sources for j in jobs if j.view.name == name), normal)
+    for v, _, _ in plan:  # masked pixels (masks/NAME.png or the image's alpha) have no depth
+        r = results.get(v.name)
+        mask = dataset.mask(v) if r is not None else None
+        if mask is not None:
+            h, w = r.depth.shape
+            if mask.shape != (h, w):
+                mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+            r.depth[~mask] = 0
     t_sweep = time.perf_counter() - t0
     if not results:
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
@@ -321,17 +382,17 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         r = results.get(v.name)
         if r is None:
             continue
-        W, H = v.intrinsics.size
         d, c = r.depth, np.where(r.depth > 0, r.confidence, 0).astype(np.float32)
-        if d.shape != (H, W):
-            d = cv2.resize(d, (W, H), interpolation=cv2.INTER_NEAREST)
-            c = cv2.resize(c, (W, H), interpolation=cv2.INTER_NEAREST)
         if not np.count_nonzero(d):
             log.warning("mvs: view %s: no depth survived filtering", v.name)
             skipped[v.name] = "no depth survived filtering"
             continue
         write_depth(out, v.name, d, c)
-        stats[v.name] = {"valid_fraction": float((d > 0).mean()), "sources": r.sources}
+        if r.normal is not None:
+            with atomic_path(out / f"{v.name}.normal.npy") as tmp:
+                np.save(tmp, np.where(d[..., None] > 0, r.normal, 0).astype(np.float16))
+        stats[v.name] = {"valid_fraction": float((d > 0).mean()), "sources": r.sources,
+                         "size": [int(d.shape[1]), int(d.shape[0])]}
         written += 1
     if not written:
         raise NoDepthError("mvs: no depth survived filtering in any view")

@@ -1,0 +1,563 @@
+"""Compiled PatchMatch kernels (numba, ``parallel=True, cache=True``): per-pixel work numpy cannot express.
+
+A hypothesis at reference pixel ``p = (x, y)`` is a plane: a z-depth ``d`` and a unit normal ``n`` in the
+reference camera frame (OpenCV axes), facing the camera (``n . ray < 0``). Its plane ``n^T X = c`` with
+``c = d n^T K_r^-1 p`` induces, in source ``j`` (``X_j = R_j X + t_j``), the homography
+
+    H_j = K_j R_j K_r^-1 + (K_j t_j) (K_r^-T n / c)^T = A_j + b_j m^T,
+
+so a hypothesis costs 9 multiply-adds per source before its window is sampled. The matching cost is
+``1 - NCC`` (0 = identical, 2 = opposite), the NCC weighted bilaterally (by distance and by grey difference
+to the centre pixel of the reference window, as in Gipuma / ACMH) over a strided window. Pixels are updated
+in a red-black checkerboard: a pass over one colour reads only the other colour's hypotheses, so the result
+does not depend on thread scheduling; random numbers come from a hash of (seed, iteration, pixel).
+
+Every kernel takes contiguous arrays and scalars, and the slow, obviously correct ``ncc_cost_reference`` in
+``patchmatch.py`` pins ``_ncc`` in the tests.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
+N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)
+
+
+def sampling_regions(strip: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 8 neighbourhood regions of ACMH's adaptive checkerboard sampling, as (dy, dx) offsets padded to a
+    common length, and each region's sample count. Every offset has an odd |dy| + |dx|: the other colour."""
+    regions: list[list[tuple[int, int]]] = []
+    for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):  # far strips: distance 1, 3, 5, ...
+        regions.append([(dy * (2 * k + 1), dx * (2 * k + 1)) for k in range(strip)])
+    v = [(1, 2), (2, 1), (1, 4), (4, 1), (2, 3), (3, 2), (3, 4)]  # near V-shaped areas, one per quadrant
+    for sy, sx in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+        regions.append([(sy * a, sx * b) for a, b in v])
+    n = max(len(r) for r in regions)
+    rdy = np.zeros((len(regions), n), np.int32)
+    rdx = np.zeros((len(regions), n), np.int32)
+    rn = np.array([len(r) for r in regions], np.int32)
+    for i, r in enumerate(regions):
+        for k, (dy, dx) in enumerate(r):
+            assert (abs(dy) + abs(dx)) % 2 == 1
+            rdy[i, k], rdx[i, k] = dy, dx
+    return rdy, rdx, rn
+
+
+def window_samples(radius: int, stride: int, sigma_space: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets (dy, dx) of a strided square window and their spatial weights exp(-r^2 / (2 sigma_s^2))."""
+    r = np.arange(-radius, radius + 1, stride)
+    dy, dx = np.meshgrid(r, r, indexing="ij")
+    dy, dx = dy.ravel().astype(np.int32), dx.ravel().astype(np.int32)
+    w = np.exp(-(dy.astype(np.float64) ** 2 + dx ** 2) / (2 * sigma_space ** 2)).astype(np.float32)
+    return dy, dx, w
+
+
+@njit(cache=True, inline="always")
+def _rand(s):
+    """xorshift32 step on an int64 holding 32 bits; returns (state, uniform in [0, 1))."""
+    s ^= (s << 13) & 0xFFFFFFFF
+    s ^= s >> 17
+    s ^= (s << 5) & 0xFFFFFFFF
+    return s, (s & 0xFFFFFF) / 16777216.0
+
+
+@njit(cache=True, inline="always")
+def _seed(seed, it, y, x):
+    s = (seed * 73856093 + it * 19349663 + y * 83492791 + x * 2654435761 + 12345) & 0xFFFFFFFF
+    for _ in range(3):
+        s ^= (s << 13) & 0xFFFFFFFF
+        s ^= s >> 17
+        s ^= (s << 5) & 0xFFFFFFFF
+    if s == 0:
+        s = 1
+    return s
+
+
+@njit(cache=True, fastmath=True)
+def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk):
+    """Fill the reference window's values ``rv`` and bilateral weights ``wk``; returns (sum w, mean, var)."""
+    H, W = ref.shape
+    c = ref[y, x]
+    sw = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for k in range(sdy.shape[0]):
+        v = min(max(y + sdy[k], 0), H - 1)
+        u = min(max(x + sdx[k], 0), W - 1)
+        val = ref[v, u]
+        dc = val - c
+        w = sspat[k] * math.exp(-dc * dc * inv2sc2)
+        rv[k] = val
+        wk[k] = w
+        sw += w
+        s1 += w * val
+        s2 += w * val * val
+    mr = s1 / sw
+    vr = s2 / sw - mr * mr
+    if vr < min_var:
+        vr = min_var
+    return sw, mr, vr
+
+
+@njit(cache=True, fastmath=True)
+def _ncc(img, x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var):
+    """1 - bilaterally weighted NCC between the reference window at (x, y) and ``img`` sampled through the
+    homography ``h`` (9 values, row-major), linearised at the window's centre (an affine map: over an 11-pixel
+    window the perspective term is far below a hundredth of a pixel); 2 when the centre falls outside the
+    source image or behind it."""
+    hs, ws = img.shape
+    hz = h[6] * x + h[7] * y + h[8]
+    if hz <= 1e-12:
+        return 2.0
+    iz = 1.0 / hz
+    cx = (h[0] * x + h[1] * y + h[2]) * iz
+    cy = (h[3] * x + h[4] * y + h[5]) * iz
+    if cx < 0.0 or cy < 0.0 or cx > ws - 1.0 or cy > hs - 1.0:
+        return 2.0
+    # Jacobian of the homography at the centre
+    j00 = (h[0] - cx * h[6]) * iz
+    j01 = (h[1] - cx * h[7]) * iz
+    j10 = (h[3] - cy * h[6]) * iz
+    j11 = (h[4] - cy * h[7]) * iz
+    xmax = ws - 1.001
+    ymax = hs - 1.001
+    s1 = 0.0
+    s2 = 0.0
+    s12 = 0.0
+    for k in range(sdy.shape[0]):
+        dv = min(max(y + sdy[k], 0), H - 1) - y
+        du = min(max(x + sdx[k], 0), W - 1) - x
+        sx = cx + j00 * du + j01 * dv
+        sy = cy + j10 * du + j11 * dv
+        if sx < 0.0:
+            sx = 0.0
+        elif sx > xmax:
+            sx = xmax
+        if sy < 0.0:
+            sy = 0.0
+        elif sy > ymax:
+            sy = ymax
+        ix = int(sx)
+        iy = int(sy)
+        fx = sx - ix
+        fy = sy - iy
+        a = img[iy, ix]
+        b = img[iy, ix + 1]
+        c = img[iy + 1, ix]
+        d = img[iy + 1, ix + 1]
+        val = a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
+        w = wk[k]
+        wv = w * val
+        s1 += wv
+        s2 += wv * val
+        s12 += wv * rv[k]
+    ms = s1 / sw
+    vs = s2 / sw - ms * ms
+    if vs < min_var:
+        vs = min_var
+    cov = s12 / sw - mr * ms
+    cost = 1.0 - cov / math.sqrt(vr * vs)
+    if cost < 0.0:
+        return 0.0
+    if cost > 2.0:
+        return 2.0
+    return cost
+
+
+@njit(cache=True)
+def _homography(A, b, j, m, h):
+    for r in range(3):
+        for c in range(3):
+            h[3 * r + c] = A[j, r, c] + b[j, r] * m[c]
+
+
+@njit(cache=True)
+def _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
+    """m = K_r^-T n / c with c = n . (d * ray): the hypothesis' term of every source homography.
+    Returns False for a plane seen edge-on."""
+    c = d * (n0 * r0 + n1 * r1 + n2 * r2)
+    if abs(c) < 1e-12:
+        return False
+    for k in range(3):
+        m[k] = (Kinv[0, k] * n0 + Kinv[1, k] * n1 + Kinv[2, k] * n2) / c
+    return True
+
+
+@njit(cache=True)
+def _geo(j, X0, X1, X2, x, y, R, t, Kd, sdepth, Kr, delta):
+    """Forward-backward reprojection error (reference pixels, capped at ``delta``) of the 3D point X (reference
+    camera frame) through source ``j``'s depth map (intrinsics ``Kd[j]``), as in ACMM."""
+    hs, ws = sdepth.shape[1], sdepth.shape[2]
+    Y0 = R[j, 0, 0] * X0 + R[j, 0, 1] * X1 + R[j, 0, 2] * X2 + t[j, 0]
+    Y1 = R[j, 1, 0] * X0 + R[j, 1, 1] * X1 + R[j, 1, 2] * X2 + t[j, 1]
+    Y2 = R[j, 2, 0] * X0 + R[j, 2, 1] * X1 + R[j, 2, 2] * X2 + t[j, 2]
+    if Y2 <= 1e-12:
+        return delta
+    u = Kd[j, 0, 0] * Y0 / Y2 + Kd[j, 0, 2]
+    v = Kd[j, 1, 1] * Y1 / Y2 + Kd[j, 1, 2]
+    iu = int(u + 0.5)
+    iv = int(v + 0.5)
+    if iu < 0 or iv < 0 or iu >= ws or iv >= hs:
+        return delta
+    ds = sdepth[j, iv, iu]
+    if ds <= 0.0:
+        return delta
+    Z0 = (u - Kd[j, 0, 2]) / Kd[j, 0, 0] * ds - t[j, 0]
+    Z1 = (v - Kd[j, 1, 2]) / Kd[j, 1, 1] * ds - t[j, 1]
+    Z2 = ds - t[j, 2]
+    B0 = R[j, 0, 0] * Z0 + R[j, 1, 0] * Z1 + R[j, 2, 0] * Z2  # R^T (Z - t)
+    B1 = R[j, 0, 1] * Z0 + R[j, 1, 1] * Z1 + R[j, 2, 1] * Z2
+    B2 = R[j, 0, 2] * Z0 + R[j, 1, 2] * Z1 + R[j, 2, 2] * Z2
+    if B2 <= 1e-12:
+        return delta
+    pu = Kr[0, 0] * B0 / B2 + Kr[0, 2]
+    pv = Kr[1, 1] * B1 / B2 + Kr[1, 2]
+    e = math.sqrt((pu - x) * (pu - x) + (pv - y) * (pv - y))
+    return e if e < delta else delta
+
+
+@njit(cache=True)
+def _random_normal(s, r0, r1, r2):
+    s, u1 = _rand(s)
+    s, u2 = _rand(s)
+    z = 2.0 * u1 - 1.0
+    rr = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = 2.0 * math.pi * u2
+    n0, n1, n2 = rr * math.cos(phi), rr * math.sin(phi), z
+    if n0 * r0 + n1 * r1 + n2 * r2 > 0:
+        n0, n1, n2 = -n0, -n1, -n2
+    return s, n0, n1, n2
+
+
+@njit(cache=True)
+def _facing(n0, n1, n2, r0, r1, r2):
+    """Normalise n and make it face the camera along the ray r."""
+    nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    if nn < 1e-12:
+        rn = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        return -r0 / rn, -r1 / rn, -r2 / rn
+    n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
+    if n0 * r0 + n1 * r1 + n2 * r2 > 0:
+        return -n0, -n1, -n2
+    return n0, n1, n2
+
+
+@njit(parallel=True, cache=True)
+def init_random(depth, normal, Kinv, dmin, dmax, seed, only_invalid):
+    """Random hypotheses (depth uniform in inverse depth over [dmin, dmax], normal uniform on the hemisphere
+    facing the camera) for every pixel, or for those with depth <= 0 when ``only_invalid``."""
+    H, W = depth.shape
+    for y in prange(H):
+        for x in range(W):
+            if only_invalid and depth[y, x] > 0:
+                continue
+            s = _seed(seed, 7777, y, x)
+            s, u = _rand(s)
+            depth[y, x] = 1.0 / (1.0 / dmax + u * (1.0 / dmin - 1.0 / dmax))
+            r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
+            r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
+            r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
+            s, n0, n1, n2 = _random_normal(s, r0, r1, r2)
+            normal[y, x, 0] = n0
+            normal[y, x, 1] = n1
+            normal[y, x, 2] = n2
+
+
+@njit(parallel=True, cache=True)
+def upsample_planes(depth_c, normal_c, Kinv_c, Kinv_f, depth_f, normal_f):
+    """Fine hypotheses from the coarse level: each fine pixel takes the plane of its nearest coarse pixel
+    (so slanted surfaces stay slanted, not staircased)."""
+    Hc, Wc = depth_c.shape
+    H, W = depth_f.shape
+    sy = Hc / H
+    sx = Wc / W
+    for y in prange(H):
+        yc = min(max(int((y + 0.5) * sy), 0), Hc - 1)
+        for x in range(W):
+            xc = min(max(int((x + 0.5) * sx), 0), Wc - 1)
+            dc = depth_c[yc, xc]
+            n0, n1, n2 = normal_c[yc, xc, 0], normal_c[yc, xc, 1], normal_c[yc, xc, 2]
+            normal_f[y, x, 0] = n0
+            normal_f[y, x, 1] = n1
+            normal_f[y, x, 2] = n2
+            if dc <= 0:
+                depth_f[y, x] = 0.0
+                continue
+            q0 = dc * (Kinv_c[0, 0] * xc + Kinv_c[0, 1] * yc + Kinv_c[0, 2])
+            q1 = dc * (Kinv_c[1, 0] * xc + Kinv_c[1, 1] * yc + Kinv_c[1, 2])
+            q2 = dc
+            r0 = Kinv_f[0, 0] * x + Kinv_f[0, 1] * y + Kinv_f[0, 2]
+            r1 = Kinv_f[1, 0] * x + Kinv_f[1, 1] * y + Kinv_f[1, 2]
+            r2 = Kinv_f[2, 0] * x + Kinv_f[2, 1] * y + Kinv_f[2, 2]
+            den = n0 * r0 + n1 * r1 + n2 * r2
+            d = dc
+            if den < -1e-6:
+                d = (n0 * q0 + n1 * q1 + n2 * q2) / den
+                if not (d > 0.5 * dc and d < 2.0 * dc):
+                    d = dc
+            depth_f[y, x] = d
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, delta_geo,
+                 sdy, sdx, sspat, sigma_c, min_var, best_k, depth, normal, cost):
+    """Cost of each pixel's current hypothesis: the mean of its ``best_k`` lowest source costs (photometric
+    plus ``lam_geo`` x the geometric term when ``use_geo``)."""
+    H, W = ref.shape
+    S = srcs.shape[0]
+    ns = sdy.shape[0]
+    inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
+    for y in prange(H):
+        rv = np.empty(ns, np.float64)
+        wk = np.empty(ns, np.float64)
+        h = np.empty(9, np.float64)
+        m = np.empty(3, np.float64)
+        cj = np.empty(S, np.float64)
+        for x in range(W):
+            d = depth[y, x]
+            r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
+            r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
+            r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
+            n0, n1, n2 = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
+            if d <= 0 or not _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
+                cost[y, x] = 2.0 + lam_geo * delta_geo
+                continue
+            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk)
+            for j in range(S):
+                _homography(A, b, j, m, h)
+                c = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                if use_geo:
+                    c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
+                cj[j] = c
+            cj.sort()
+            k = min(best_k, S)
+            acc = 0.0
+            for j in range(k):
+                acc += cj[j]
+            cost[y, x] = acc / k
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, delta_geo,
+            sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
+            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, refine, depth, normal, cost):
+    """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
+
+    1. candidates: the current hypothesis and, from each of the 8 regions around it (other colour), the
+       neighbour hypothesis with the lowest cost, propagated as a plane to this pixel;
+    2. multi-hypothesis joint view selection: the (candidates x sources) cost matrix decides each source's
+       weight: selected when more than ``n_good`` candidates match it better than ``tau_good`` and fewer than
+       ``n_bad`` worse than ``tau_bad``; its weight is the mean of exp(-c^2 / (2 sigma_conf^2)) over its good
+       candidates (without any selected source: the two sources that match best);
+    3. the candidate with the lowest weighted cost (photometric + ``lam_geo`` x geometric when ``use_geo``)
+       becomes the pixel's hypothesis;
+    4. refinement (``refine``): perturbed and random depths and normals, with the same view weights.
+    """
+    H, W = ref.shape
+    S = srcs.shape[0]
+    ns = sdy.shape[0]
+    NC = 1 + N_REGIONS
+    inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
+    inv2conf = 1.0 / (2.0 * sigma_conf * sigma_conf)
+    for y in prange(H):
+        rv = np.empty(ns, np.float64)
+        wk = np.empty(ns, np.float64)
+        h = np.empty(9, np.float64)
+        m = np.empty(3, np.float64)
+        cd = np.empty(NC, np.float64)
+        cn = np.empty((NC, 3), np.float64)
+        ok = np.empty(NC, np.bool_)
+        cm = np.empty((NC, S), np.float64)
+        wv = np.empty(S, np.float64)
+        bestj = np.empty(S, np.float64)
+        for x in range((y + color) % 2, W, 2):
+            r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
+            r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
+            r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
+            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk)
+            # 1. candidates
+            cd[0] = depth[y, x]
+            cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
+            nc = 1
+            for reg in range(N_REGIONS):
+                best = 1e30
+                by = -1
+                bx = -1
+                for k in range(rn[reg]):
+                    yy = y + rdy[reg, k]
+                    xx = x + rdx[reg, k]
+                    if yy < 0 or yy >= H or xx < 0 or xx >= W:
+                        continue
+                    if cost[yy, xx] < best and depth[yy, xx] > 0:
+                        best = cost[yy, xx]
+                        by = yy
+                        bx = xx
+                if by < 0:
+                    continue
+                dq = depth[by, bx]
+                n0, n1, n2 = normal[by, bx, 0], normal[by, bx, 1], normal[by, bx, 2]
+                q0 = dq * (Kinv[0, 0] * bx + Kinv[0, 1] * by + Kinv[0, 2])
+                q1 = dq * (Kinv[1, 0] * bx + Kinv[1, 1] * by + Kinv[1, 2])
+                q2 = dq
+                den = n0 * r0 + n1 * r1 + n2 * r2
+                d = dq
+                if den < -1e-6:
+                    d = (n0 * q0 + n1 * q1 + n2 * q2) / den
+                    if not (d >= dmin * 0.5 and d <= dmax * 2.0):
+                        d = dq
+                cd[nc] = d
+                cn[nc, 0], cn[nc, 1], cn[nc, 2] = n0, n1, n2
+                nc += 1
+            # 2. cost matrix
+            for i in range(nc):
+                d = cd[i]
+                ok[i] = d > 0 and _plane_m(d, cn[i, 0], cn[i, 1], cn[i, 2], r0, r1, r2, Kinv, m)
+                same = -1
+                for q in range(i):  # converged neighbours often propagate the very same plane
+                    if (abs(cd[q] - d) <= 1e-6 * d and cn[q, 0] * cn[i, 0] + cn[q, 1] * cn[i, 1]
+                            + cn[q, 2] * cn[i, 2] > 0.999999):
+                        same = q
+                        break
+                if same >= 0:
+                    for j in range(S):
+                        cm[i, j] = cm[same, j]
+                    continue
+                for j in range(S):
+                    if not ok[i]:
+                        cm[i, j] = 2.0 + lam_geo * delta_geo
+                        continue
+                    _homography(A, b, j, m, h)
+                    c = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                    if use_geo:
+                        c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
+                    cm[i, j] = c
+            # 3. view weights
+            wsum = 0.0
+            for j in range(S):
+                ng = 0
+                nb = 0
+                acc = 0.0
+                mn = 1e30
+                for i in range(nc):
+                    c = cm[i, j]
+                    if c < mn:
+                        mn = c
+                    if c < tau_good:
+                        ng += 1
+                        acc += math.exp(-c * c * inv2conf)
+                    elif c > tau_bad:
+                        nb += 1
+                bestj[j] = mn
+                if ng > n_good and nb < n_bad:
+                    wv[j] = acc / ng
+                else:
+                    wv[j] = 0.0
+                wsum += wv[j]
+            if wsum <= 0.0:
+                # fall back to the two sources that match some candidate best
+                for _ in range(min(2, S)):
+                    jb = 0
+                    mn = 1e30
+                    for j in range(S):
+                        if wv[j] == 0.0 and bestj[j] < mn:
+                            mn = bestj[j]
+                            jb = j
+                    wv[jb] = 1.0
+                    wsum += 1.0
+            # 4. best candidate by weighted cost
+            bi = 0
+            bc = 1e30
+            for i in range(nc):
+                acc = 0.0
+                for j in range(S):
+                    if wv[j] > 0:
+                        acc += wv[j] * cm[i, j]
+                acc /= wsum
+                if acc < bc:
+                    bc = acc
+                    bi = i
+            d0 = cd[bi]
+            n0, n1, n2 = cn[bi, 0], cn[bi, 1], cn[bi, 2]
+            if not ok[bi]:
+                continue
+            # 5. refinement
+            if refine:
+                s = _seed(seed, it * 2 + color, y, x)
+                s, u = _rand(s)
+                dr = 1.0 / (1.0 / dmax + u * (1.0 / dmin - 1.0 / dmax))
+                s, nr0, nr1, nr2 = _random_normal(s, r0, r1, r2)
+                s, u = _rand(s)
+                dp = d0 * (1.0 + pert * (2.0 * u - 1.0))
+                s, u1 = _rand(s)
+                s, u2 = _rand(s)
+                s, u3 = _rand(s)
+                np0, np1, np2 = _facing(n0 + pert * 4.0 * (2.0 * u1 - 1.0), n1 + pert * 4.0 * (2.0 * u2 - 1.0),
+                                        n2 + pert * 4.0 * (2.0 * u3 - 1.0), r0, r1, r2)
+                for q in range(N_REFINE):
+                    if q == 0:
+                        d, a0, a1, a2 = dp, n0, n1, n2
+                    elif q == 1:
+                        d, a0, a1, a2 = d0, np0, np1, np2
+                    elif q == 2:
+                        d, a0, a1, a2 = dp, np0, np1, np2
+                    elif q == 3:
+                        d, a0, a1, a2 = dr, n0, n1, n2
+                    elif q == 4:
+                        d, a0, a1, a2 = d0, nr0, nr1, nr2
+                    else:
+                        d, a0, a1, a2 = dr, nr0, nr1, nr2
+                    if not (d >= dmin and d <= dmax):
+                        continue
+                    if not _plane_m(d, a0, a1, a2, r0, r1, r2, Kinv, m):
+                        continue
+                    acc = 0.0
+                    for j in range(S):
+                        if wv[j] <= 0:
+                            continue
+                        _homography(A, b, j, m, h)
+                        c = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                        if use_geo:
+                            c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
+                        acc += wv[j] * c
+                        if acc >= bc * wsum:  # cannot win any more
+                            break
+                    acc /= wsum
+                    if acc < bc:
+                        bc = acc
+                        d0, n0, n1, n2 = d, a0, a1, a2
+            depth[y, x] = d0
+            normal[y, x, 0] = n0
+            normal[y, x, 1] = n1
+            normal[y, x, 2] = n2
+            cost[y, x] = bc
+
+
+@njit(parallel=True, cache=True)
+def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, depth, normal, out):
+    """(S, H, W) photometric cost of each pixel's hypothesis in every source (2 where there is none): for
+    tests and diagnostics."""
+    H, W = ref.shape
+    S = srcs.shape[0]
+    ns = sdy.shape[0]
+    inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
+    for y in prange(H):
+        rv = np.empty(ns, np.float64)
+        wk = np.empty(ns, np.float64)
+        h = np.empty(9, np.float64)
+        m = np.empty(3, np.float64)
+        for x in range(W):
+            r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
+            r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
+            r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
+            d = depth[y, x]
+            if d <= 0 or not _plane_m(d, normal[y, x, 0], normal[y, x, 1], normal[y, x, 2], r0, r1, r2, Kinv, m):
+                for j in range(S):
+                    out[j, y, x] = 2.0
+                continue
+            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk)
+            for j in range(S):
+                _homography(A, b, j, m, h)
+                out[j, y, x] = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)

@@ -1,0 +1,279 @@
+"""PatchMatch multi-view stereo on the CPU (ACMH + ACMM's multi-scale geometric consistency), numba kernels.
+
+Per reference view and per pyramid level, coarse to fine:
+
+* **Hypotheses** are planes: a z-depth and a normal per pixel (reference camera frame, OpenCV axes).
+* **Initialisation**: at the coarsest level, random planes (depth uniform in inverse depth over the view's
+  range, normal uniform facing the camera), with the view's sparse SfM points seeded as fronto-parallel
+  planes; at finer levels, each pixel takes the plane of its nearest coarse pixel (slants survive).
+* **Red-black checkerboard propagation** (ACMH's adaptive sampling: 8 regions, best neighbour of each),
+  **multi-hypothesis joint view selection** per pixel, and **refinement** by perturbed and random depths
+  and normals (``_pm_kernels.pm_pass``).
+* **Matching cost**: 1 - NCC, bilaterally weighted, over a strided window (``radius`` 5, ``stride`` 2: an
+  11x11 window sampled every 2 pixels).
+* **Geometric consistency** (ACMM): at every level but the coarsest, the cost adds ``geom_weight`` x the
+  forward-backward reprojection error (pixels, capped) through each source's depth map of the previous
+  level, which pulls views together and fills weakly textured areas from their coarse estimates; a final
+  round at full resolution uses the full-resolution depth maps of the other views.
+
+Results are ``DepthResult``s at working resolution with a per-pixel normal; the caller (``mvs.run_mvs``)
+filters them (confidence, geometric consistency between views) and writes them.
+"""
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from ..cameras import View, invert_rigid
+from ..progress import bar
+
+log = logging.getLogger("photorecon")
+
+
+@dataclass
+class PMJob:
+    """One reference view to compute: its working-resolution view, source names, depth range and the world
+    points (SfM) it sees, used as seeds."""
+
+    view: View
+    sources: list[str]
+    dmin: float
+    dmax: float
+    seeds: np.ndarray
+
+
+def level_view(view: View, level: int) -> View:
+    """``view`` with its image halved ``level`` times (sizes rounded, pixel centres kept consistent)."""
+    if level == 0:
+        return view
+    W, H = view.intrinsics.size
+    f = 0.5 ** level
+    intr = view.intrinsics.scaled(max(8, int(round(W * f))), max(8, int(round(H * f))))
+    return View(view.name, intr, view.cam_from_world, view.image_path, view.extra)
+
+
+def _kernels():
+    from . import _pm_kernels
+
+    return _pm_kernels
+
+
+def _pinhole_K(view: View) -> np.ndarray:
+    return np.ascontiguousarray(view.intrinsics.K, np.float64)
+
+
+def _stack(arrays: list[np.ndarray]) -> np.ndarray:
+    """Stack 2D float32 arrays, zero-padded to the largest (sources of mixed sizes)."""
+    h = max(a.shape[0] for a in arrays)
+    w = max(a.shape[1] for a in arrays)
+    if all(a.shape == (h, w) for a in arrays):
+        return np.ascontiguousarray(np.stack(arrays), np.float32)
+    out = np.zeros((len(arrays), h, w), np.float32)
+    for i, a in enumerate(arrays):
+        out[i, : a.shape[0], : a.shape[1]] = a
+    return out
+
+
+class _Geometry:
+    """Per (reference, sources) pair, at one level: the homography terms A_j = K_j R_j K_r^-1, b_j = K_j t_j,
+    and the relative poses (source from reference) for the geometric term."""
+
+    def __init__(self, ref: View, sources: list[View]):
+        Kr = _pinhole_K(ref)
+        Krinv = np.linalg.inv(Kr)
+        world_from_ref = invert_rigid(ref.cam_from_world)
+        S = len(sources)
+        self.Kr, self.Kinv = Kr, Krinv
+        self.A = np.zeros((S, 3, 3))
+        self.b = np.zeros((S, 3))
+        self.R = np.zeros((S, 3, 3))
+        self.t = np.zeros((S, 3))
+        for j, s in enumerate(sources):
+            rel = s.cam_from_world @ world_from_ref
+            Ks = _pinhole_K(s)
+            self.R[j], self.t[j] = rel[:3, :3], rel[:3, 3]
+            self.A[j] = Ks @ rel[:3, :3] @ Krinv
+            self.b[j] = Ks @ rel[:3, 3]
+
+
+class PatchMatchParams:
+    """The kernel settings derived from an ``MVSConfig`` (window samples, regions, thresholds)."""
+
+    def __init__(self, cfg):
+        k = _kernels()
+        self.sdy, self.sdx, self.sspat = k.window_samples(cfg.pm_radius, cfg.pm_stride, max(cfg.pm_radius * 0.6, 1.0))
+        self.rdy, self.rdx, self.rn = k.sampling_regions()
+        self.sigma_c = float(cfg.pm_sigma_color)
+        self.min_var = 1e-5
+        self.cfg = cfg
+
+
+def seed_planes(depth: np.ndarray, normal: np.ndarray, view: View, points: np.ndarray, dmin: float, dmax: float) -> int:
+    """Set fronto-parallel planes at the pixels where ``view`` sees the world ``points``; returns how many."""
+    if not len(points):
+        return 0
+    T = view.cam_from_world
+    Xc = points @ T[:3, :3].T + T[:3, 3]
+    z = Xc[:, 2]
+    ok = (z >= dmin) & (z <= dmax)
+    Xc, z = Xc[ok], z[ok]
+    intr = view.intrinsics
+    u = np.round(intr.fx * Xc[:, 0] / z + intr.cx).astype(np.int64)
+    v = np.round(intr.fy * Xc[:, 1] / z + intr.cy).astype(np.int64)
+    ok = (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+    u, v, z, Xc = u[ok], v[ok], z[ok], Xc[ok]
+    depth[v, u] = z
+    n = -Xc / np.linalg.norm(Xc, axis=1, keepdims=True)
+    normal[v, u] = n
+    return int(len(u))
+
+
+def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], sources: list[View],
+                    dmin: float, dmax: float, params: PatchMatchParams, iterations: int,
+                    init: tuple[np.ndarray, np.ndarray] | None = None, seeds: np.ndarray | None = None,
+                    geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0):
+    """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
+    random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
+    views, for the geometric-consistency term. Returns (depth, normal, cost) at ``ref``'s resolution."""
+    k = _kernels()
+    cfg = params.cfg
+    H, W = ref_img.shape
+    if init is None:
+        depth = np.zeros((H, W), np.float32)
+        normal = np.zeros((H, W, 3), np.float32)
+        if seeds is not None:
+            seed_planes(depth, normal, ref, seeds, dmin, dmax)
+    else:
+        depth, normal = np.ascontiguousarray(init[0], np.float32), np.ascontiguousarray(init[1], np.float32)
+    g = _Geometry(ref, sources)
+    k.init_random(depth, normal, g.Kinv, float(dmin), float(dmax), int(seed), True)
+    ref_img = np.ascontiguousarray(ref_img, np.float32)
+    srcs = _stack(src_imgs)
+    if geo is not None:
+        sdepth = _stack(geo[0])
+        Kd = np.stack([_pinhole_K(v) for v in geo[1]])
+        use_geo, lam = True, float(cfg.geom_weight)
+    else:
+        sdepth = np.zeros((len(sources), 1, 1), np.float32)
+        Kd = np.zeros((len(sources), 3, 3))
+        use_geo, lam = False, 0.0
+    delta = 3.0
+    cost = np.empty((H, W), np.float32)
+    best_k = max(1, min(len(sources), (len(sources) + 1) // 2))
+    k.initial_cost(ref_img, srcs, g.A, g.b, g.Kr, g.Kinv, g.R, g.t, Kd, sdepth, use_geo, lam, delta,
+                   params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, depth, normal, cost)
+    for it in range(iterations):
+        tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
+        pert = max(0.02 * 0.5 ** it, 0.002)
+        for color in (0, 1):
+            k.pm_pass(color, it, ref_img, srcs, g.A, g.b, g.Kr, g.Kinv, g.R, g.t, Kd, sdepth, use_geo, lam, delta,
+                      params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var,
+                      params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
+                      float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), True, depth, normal, cost)
+    return depth, normal, cost
+
+
+def patchmatch_all(jobs: list[PMJob], image: Callable[[str, View], np.ndarray], cfg) -> dict[str, tuple]:
+    """Multi-scale PatchMatch over every job, level by level (ACMM): all views at one level before any at the
+    next finer one, so the geometric term can use the other views' depth maps. ``image(name, view)`` returns
+    the grey float32 image of view ``name`` at ``view``'s resolution. Returns name -> (depth, normal, cost,
+    view) at working resolution."""
+    params = PatchMatchParams(cfg)
+    by_name = {j.view.name: j for j in jobs}
+    levels = max(1, int(cfg.pm_levels))
+    timings: dict[str, float] = {}
+    prev: dict[str, tuple[np.ndarray, View]] = {}  # name -> (depth, view) of the previous level
+    with tempfile.TemporaryDirectory(prefix="photorecon_pm_") as tmp:
+        tmp = Path(tmp)
+        # (level, geometric term, iterations): coarse to fine, then ACMM's extra round at full resolution
+        rounds = [(levels - 1, False, cfg.pm_iterations)]
+        rounds += [(lvl, cfg.geom_consistency, cfg.pm_fine_iterations) for lvl in reversed(range(levels - 1))]
+        if cfg.geom_consistency and cfg.pm_final_iterations > 0:
+            rounds.append((0, True, cfg.pm_final_iterations))
+        cur: dict[str, tuple[np.ndarray, View]] = {}
+        for r, (lvl, geometric, iters) in enumerate(rounds):
+            first = r == 0
+            cur = {}
+            t0 = time.perf_counter()
+            for job in bar(jobs, desc=f"patchmatch {r + 1}/{len(rounds)}"):
+                name = job.view.name
+                ref = level_view(job.view, lvl)
+                srcs = [level_view(by_name[s].view, lvl) if s in by_name else None for s in job.sources]
+                src_names = [s for s, v in zip(job.sources, srcs) if v is not None]
+                srcs = [v for v in srcs if v is not None]
+                init = None
+                if not first:
+                    d_prev, v_prev = prev[name]
+                    n_prev = np.load(tmp / f"{name}.normal.npy")
+                    if v_prev.intrinsics.size == ref.intrinsics.size:
+                        init = (d_prev.copy(), n_prev)
+                    else:
+                        d = np.zeros((ref.intrinsics.height, ref.intrinsics.width), np.float32)
+                        n = np.zeros(d.shape + (3,), np.float32)
+                        _kernels().upsample_planes(d_prev, n_prev, np.linalg.inv(_pinhole_K(v_prev)),
+                                                   np.linalg.inv(_pinhole_K(ref)), d, n)
+                        init = (d, n)
+                geo = None
+                if geometric:
+                    have = [s for s in src_names if s in prev]
+                    if have:
+                        geo = ([prev[s][0] for s in src_names if s in prev], [prev[s][1] for s in src_names if s in prev])
+                        if len(have) != len(src_names):
+                            geo = None
+                t1 = time.perf_counter()
+                depth, normal, cost = patchmatch_view(
+                    image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
+                    params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed)
+                timings[name] = timings.get(name, 0.0) + time.perf_counter() - t1
+                np.save(tmp / f"{name}.normal.npy", normal)
+                np.save(tmp / f"{name}.cost.npy", cost)
+                cur[name] = (depth, ref)
+            log.debug("patchmatch round %d (level %d, %s): %.1f s", r + 1, lvl, "geometric" if geometric else "photometric",
+                      time.perf_counter() - t0)
+            prev = cur
+        out = {}
+        for name, (depth, view) in cur.items():
+            out[name] = (depth, np.load(tmp / f"{name}.normal.npy"), np.load(tmp / f"{name}.cost.npy"), view,
+                         timings.get(name, 0.0))
+    return out
+
+
+def ncc_cost_reference(ref: np.ndarray, src: np.ndarray, x: int, y: int, Hm: np.ndarray, radius: int, stride: int,
+                       sigma_space: float, sigma_color: float, min_var: float = 1e-5) -> float:
+    """Slow, obviously correct 1 - bilateral NCC of one pixel's window through the homography ``Hm`` (ref
+    pixel -> source pixel): the test oracle for the compiled ``_ncc``."""
+    Hh, Ww = ref.shape
+    hs, ws = src.shape
+    c = np.array([x, y, 1.0]) @ Hm.T
+    if c[2] <= 1e-12:
+        return 2.0
+    cx, cy = c[0] / c[2], c[1] / c[2]
+    if not (0 <= cx <= ws - 1 and 0 <= cy <= hs - 1):
+        return 2.0
+    rs, ss, ws_ = [], [], []
+    for dy in range(-radius, radius + 1, stride):
+        for dx in range(-radius, radius + 1, stride):
+            u, v = min(max(x + dx, 0), Ww - 1), min(max(y + dy, 0), Hh - 1)
+            r = float(ref[v, u])
+            w = np.exp(-(dx * dx + dy * dy) / (2 * sigma_space ** 2)) * np.exp(-(r - ref[y, x]) ** 2 / (2 * sigma_color ** 2))
+            p = np.array([u, v, 1.0]) @ Hm.T
+            sx = min(max(p[0] / p[2], 0.0), ws - 1.001)
+            sy = min(max(p[1] / p[2], 0.0), hs - 1.001)
+            s = cv2.getRectSubPix(src.astype(np.float32), (1, 1), (sx, sy))[0, 0]  # bilinear
+            rs.append(r)
+            ss.append(float(s))
+            ws_.append(w)
+    r, s, w = np.array(rs), np.array(ss), np.array(ws_)
+    w = w / w.sum()
+    mr, ms = (w * r).sum(), (w * s).sum()
+    vr = max((w * r * r).sum() - mr * mr, min_var)
+    vs = max((w * s * s).sum() - ms * ms, min_var)
+    cov = (w * r * s).sum() - mr * ms
+    return float(np.clip(1 - cov / np.sqrt(vr * vs), 0, 2))
