@@ -11,16 +11,17 @@ OUT layout::
     OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
     OUT/report.html        a self-contained page with the previews, depth maps and numbers
     OUT/colmap/            SfM working files (database, distorted model), cached
-    OUT/.stages/           one marker per completed stage (with its parameters); a re-run skips a stage
-                           whose marker matches, unless force=True
+    OUT/.stages/           one marker per completed stage (poses, depth, fusion, preview): a hash of its
+                           settings, of its input files' names, sizes and times and of the stage before;
+                           a re-run skips a stage whose marker matches, unless force=True
 
-Every file is written atomically and a stage's marker only after all its outputs, so an interrupted run
-leaves nothing a later run mistakes for complete. The input folder is never written to.
+The stages run through ``photorecon.stages.Stages``: every file is written atomically and a stage's marker
+only after all its outputs, so an interrupted run leaves nothing a later run mistakes for complete, and a stage
+that runs again makes every later stage run again. The input folder is never written to.
 """
 from __future__ import annotations
 
 import base64
-import hashlib
 import html
 import json
 import logging
@@ -38,8 +39,8 @@ from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesErro
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json, atomic_write_text
 from .mesh import CleanConfig
-from .resources import measure
 from .sfm import SfMConfig
+from .stages import Stages, atomic_dir, fingerprint
 
 log = logging.getLogger("photorecon")
 
@@ -63,41 +64,6 @@ class StageConfigs:
     # MVS and monocular depth are noisier than rendered depth: a wider truncation band than FusionConfig's
     fusion: FusionConfig = field(default_factory=lambda: FusionConfig(trunc_voxels=3.0))
     clean: CleanConfig = field(default_factory=CleanConfig)
-
-
-class _Stages:
-    """Completion markers in OUT/.stages: NAME.json holds the stage's parameter hash."""
-
-    def __init__(self, out: Path, force: bool):
-        self.dir = out / ".stages"
-        self.dir.mkdir(parents=True, exist_ok=True)
-        self.force = force
-        self.invalidated = False
-
-    def key(self, params) -> str:
-        return hashlib.sha256(json.dumps(params, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-    def done(self, name: str, params) -> bool:
-        p = self.dir / f"{name}.json"
-        if self.force or self.invalidated or not p.is_file():
-            self.invalidated = True  # every later stage must run again too
-            return False
-        try:
-            ok = json.loads(p.read_text()).get("key") == self.key(params)
-        except (OSError, json.JSONDecodeError):
-            ok = False
-        if not ok:
-            self.invalidated = True
-        return ok
-
-    def mark(self, name: str, params, info: dict | None = None) -> None:
-        atomic_write_json(self.dir / f"{name}.json", {"key": self.key(params), "info": info or {}})
-
-    def info(self, name: str) -> dict:
-        try:
-            return json.loads((self.dir / f"{name}.json").read_text()).get("info", {})
-        except (OSError, json.JSONDecodeError):
-            return {}
 
 
 def _undistort_given(model, images_dir: Path, out: Path):
@@ -154,7 +120,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     from .io.nerf import write_transforms
     from .io.output import prepare_output
     from .ingest import VIDEO_SUFFIXES
-    from .mesh import clean, export, parse_formats
+    from .mesh import clean, export, load, parse_formats
     from .preview import render_preview
     from .sfm import run_sfm
 
@@ -172,81 +138,88 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     if run.depth_model and not Path(run.depth_model).is_file():
         raise BadArgumentError(f"--depth-model: {run.depth_model}: no such file")
     out = prepare_output(out, overwrite, inputs=(images,) + ((run.depth,) if run.depth != "mvs" else ()))
-    stages = _Stages(out, force)
-    stats: dict = {}
+    stages = Stages(out / ".stages", force)
     warnings: list[str] = []
     handler = _WarningCollector(warnings)
     log.addHandler(handler)
     try:
-        # 1. poses
-        pose_params = {"images": str(images.resolve()), "poses": run.poses, "sfm": asdict(cfgs.sfm)}
-        if not stages.done("poses", pose_params):
-            with measure(stats, "poses"):
-                if run.poses:
-                    model = _undistort_given(read_model(run.poses), images, out)
-                    write_colmap_text(model, out / "sparse" / "0")
-                    write_transforms(model.views, out / "transforms.json")
-                    info = {"source": run.poses, "registered": len(model.views), "unregistered": []}
-                else:
-                    res = run_sfm(images, out, cfgs.sfm, force=force)
-                    info = {"source": "sfm", "registered": len(res.registered), "unregistered": res.unregistered,
-                            "sfm_seconds": res.seconds}
-            stages.mark("poses", pose_params, info)
+        # 1. poses: OUT/images, OUT/sparse/0, OUT/transforms.json
+        def poses() -> dict:
+            if run.poses:
+                shutil.rmtree(out / "images", ignore_errors=True)  # no image left from an earlier SfM run
+                model = _undistort_given(read_model(run.poses), images, out)
+                write_colmap_text(model, out / "sparse" / "0")
+                write_transforms(model.views, out / "transforms.json")
+                info = {"source": run.poses, "registered": len(model.views), "unregistered": []}
+            else:
+                res = run_sfm(images, out, cfgs.sfm, force=force)
+                info = {"source": "sfm", "registered": len(res.registered), "unregistered": res.unregistered,
+                        "sfm_seconds": res.seconds}
             log.info("poses: %d images registered", info["registered"])
-        else:
-            stats["poses"] = {"seconds": 0.0, "cached": True}
+            return info
+
+        sfm_inputs = None if run.poses else {"settings": asdict(cfgs.sfm), "intrinsics":
+                                             cfgs.sfm.intrinsics and fingerprint(cfgs.sfm.intrinsics)}
+        stages.run("poses", {"images": fingerprint(images), "poses": run.poses and fingerprint(run.poses),
+                             "sfm": sfm_inputs},
+                   poses, outputs=[out / "images", out / "sparse" / "0", out / "transforms.json"])
         ds = Dataset.open(out)
 
-        # 2. depth
-        depth_params = {"depth": run.depth, "model": run.depth_model, "preset": run.depth_preset,
-                        "mvs": asdict(cfgs.mvs)}
-        if not stages.done("depth", depth_params):
-            tmp_depth = out / ".depth.partial"
-            shutil.rmtree(tmp_depth, ignore_errors=True)
-            with measure(stats, "depth"):
-                if run.depth_model:
+        # 2. depth: OUT/depth
+        source = "mono" if run.depth_model else "mvs" if run.depth == "mvs" else "folder"
+
+        def depth() -> dict:
+            with atomic_dir(out / "depth") as tmp_depth:
+                if source == "mono":
                     from .depth.mono import MonoConfig, run_mono
 
                     rep = run_mono(ds, run.depth_model, tmp_depth, MonoConfig(preset=run.depth_preset))
                     info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
-                elif run.depth == "mvs":
+                elif source == "mvs":
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs)
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"]}
                 else:
                     n = _copy_depth(Path(run.depth), ds, tmp_depth)
                     info = {"source": str(run.depth), "views": n}
-            shutil.rmtree(out / "depth", ignore_errors=True)
-            tmp_depth.rename(out / "depth")
-            stages.mark("depth", depth_params, info)
             log.info("depth: %d depth maps (%s)", info["views"], info["source"])
-        else:
-            stats["depth"] = {"seconds": 0.0, "cached": True}
+            return info
 
-        # 3. fusion + cleaning + export
-        fuse_params = {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats}
-        if not stages.done("mesh", fuse_params):
-            with measure(stats, "fusion"):
-                frames = load_frames(ds, cfgs.fusion)
-                mesh = fuse(frames, cfgs.fusion, ds.model.points)
-                mesh = clean(mesh, cfgs.clean)
-                for fmt in formats:
-                    export(mesh, out / f"mesh.{fmt}")
-            with measure(stats, "preview"):
-                render_preview(mesh, out / "preview.png", cameras=ds.views)
-            stages.mark("mesh", fuse_params, {"vertices": len(mesh.vertices), "faces": len(mesh.faces),
-                                              "depth_maps_fused": len(frames)})
-            log.info("mesh: %d vertices, %d faces", len(mesh.vertices), len(mesh.faces))
+        if source == "mono":
+            depth_inputs = {"model": fingerprint(run.depth_model), "preset": run.depth_preset}
+        elif source == "mvs":
+            depth_inputs = asdict(cfgs.mvs)
         else:
-            stats["fusion"] = {"seconds": 0.0, "cached": True}
+            depth_inputs = fingerprint(run.depth)
+        stages.run("depth", {"source": source, "inputs": depth_inputs}, depth, outputs=[out / "depth"])
+
+        # 3. fusion, cleaning, export: OUT/mesh.*; then OUT/preview.png
+        fused = {}
+
+        def fusion() -> dict:
+            frames = load_frames(ds, cfgs.fusion)
+            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean)
+            for fmt in formats:
+                export(mesh, out / f"mesh.{fmt}")
+            fused["mesh"] = mesh
+            log.info("mesh: %d vertices, %d faces", len(mesh.vertices), len(mesh.faces))
+            return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames)}
+
+        def preview() -> None:
+            mesh = fused["mesh"] if "mesh" in fused else load(out / f"mesh.{formats[0]}")
+            render_preview(mesh, out / "preview.png", cameras=ds.views)
+
+        stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
+                   fusion, outputs=[out / f"mesh.{fmt}" for fmt in formats])
+        stages.run("preview", {}, preview, outputs=[out / "preview.png"])
     finally:
         log.removeHandler(handler)
     report = {
         "photorecon": __version__, "python": platform.python_version(), "versions": _versions(),
         "input": str(images), "output": str(out),
         "parameters": {k: asdict(v) for k, v in asdict_shallow(cfgs).items()},
-        "stages": stats, "poses": stages.info("poses"), "depth": stages.info("depth"), "mesh": stages.info("mesh"),
-        "warnings": warnings,
+        "stages": stages.stats, "poses": stages.info.get("poses", {}), "depth": stages.info.get("depth", {}),
+        "mesh": stages.info.get("fusion", {}), "warnings": warnings,
     }
     atomic_write_json(out / "report.json", report)
     write_html_report(out, report)

@@ -206,7 +206,8 @@ def match(features: Path, database: Path, matcher: str, cfg: SfMConfig) -> Path:
     return database
 
 
-def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool) -> Path:  # noqa: A001 (hloc's step name; the builtin is not used here)
+# named after the step, as hloc does; this module does not use the builtin map
+def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool) -> Path:  # noqa: A001
     """Incremental (or global) mapping; writes the largest model, COLMAP binary, to ``model_dir``."""
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(cfg.seed)
@@ -292,7 +293,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     matcher = choose_matcher(cfg, len(names))
     database = work / "database.db"
-    stages.run("matching", {"matcher": matcher, "overlap": cfg.sequential_overlap if matcher == "sequential" else None},
+    overlap = cfg.sequential_overlap if matcher == "sequential" else None
+    stages.run("matching", {"matcher": matcher, "overlap": overlap},
                lambda: match(features, database, matcher, cfg), outputs=[database])
 
     fixed = _given_intrinsics(cfg, images[0].width, images[0].height) is not None and not cfg.refine_intrinsics

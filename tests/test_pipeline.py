@@ -64,7 +64,7 @@ def test_interrupted_run_resumes(sphere30, tmp_path, monkeypatch, capsys):
     args = ["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--n-depths", "64"]
     assert main(args) == 130
     assert "interrupted" in capsys.readouterr().err
-    assert not (out / "mesh.ply").exists() and not (out / ".stages" / "mesh.json").exists()
+    assert not (out / "mesh.ply").exists() and not (out / ".stages" / "fusion.json").exists()
     assert (out / ".stages" / "depth.json").exists()
     monkeypatch.setattr(fusion, "fuse", real)
     assert main(args) == 0
@@ -137,3 +137,42 @@ def test_transforms_paths_are_confined(blob_small, tmp_path, capsys):
     data["frames"][0]["file_path"] = "/etc/passwd"
     (bad / "transforms.json").write_text(json.dumps(data))
     assert main(["-q", "convert", str(bad / "transforms.json"), str(tmp_path / "c")]) == 3
+
+
+def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path):
+    """Issue 12: each stage is keyed on its settings and input files; a stage that runs again runs the later
+    ones too, and only those."""
+    import shutil
+
+    images, depth, out = tmp_path / "images", tmp_path / "depth", tmp_path / "out"
+    shutil.copytree(blob_small / "images", images)
+    shutil.copytree(blob_small / "depth", depth)
+
+    def ran(*flags):
+        assert main(["-q", "reconstruct", str(images), "-o", str(out), "--poses", str(blob_small / "transforms.json"),
+                     "--depth", str(depth), *flags]) == 0
+        rep = json.loads((out / "report.json").read_text())
+        return [name for name, s in rep["stages"].items() if not s.get("cached")], rep
+
+    assert ran()[0] == ["poses", "depth", "fusion", "preview"]
+    assert ran()[0] == []
+    assert ran("--trunc-voxels", "4")[0] == ["fusion", "preview"]
+    faces = ran("--trunc-voxels", "4")[1]["mesh"]["faces"]
+    assert faces > 0  # the reused stage's facts are still reported
+
+    # a depth map rewritten with the same bytes (a newer time): depth and what follows
+    np.save(depth / "view_000.npy", np.load(depth / "view_000.npy"))
+    assert ran("--trunc-voxels", "4")[0] == ["depth", "fusion", "preview"]
+    # a depth map changed: the mesh follows it
+    d = np.load(depth / "view_001.npy")
+    np.save(depth / "view_001.npy", np.zeros_like(d))
+    names, rep = ran("--trunc-voxels", "4")
+    assert names == ["depth", "fusion", "preview"] and rep["mesh"]["faces"] != faces
+    # an input image rewritten: everything
+    (images / "view_002.png").write_bytes((images / "view_003.png").read_bytes())
+    assert ran("--trunc-voxels", "4")[0] == ["poses", "depth", "fusion", "preview"]
+    # a deleted output: its stage only (the preview loads the mesh from its file)
+    (out / "preview.png").unlink()
+    assert ran("--trunc-voxels", "4")[0] == ["preview"] and (out / "preview.png").is_file()
+    assert ran("--trunc-voxels", "4", "--formats", "ply")[0] == ["fusion", "preview"]
+    assert ran("--trunc-voxels", "4", "--formats", "ply", "--force")[0] == ["poses", "depth", "fusion", "preview"]

@@ -321,3 +321,20 @@ def test_sfm_reruns_when_the_images_change(ring_tiny, tmp_path):
     assert res.cached == [] and len(res.registered) == 15
     assert not (out / "colmap" / "images" / "view_015.png").exists()
     assert sorted(p.name for p in (out / "images").iterdir()) == [f"view_{i:03d}.png" for i in range(15)]
+
+
+@pytest.mark.slow
+def test_reconstruct_reruns_sfm_with_new_intrinsics(ring_tiny, tmp_path):
+    """Issue 12: reconstruct's poses stage is keyed on the SfM settings, and SfM's own caches too."""
+    out = tmp_path / "out"
+    args = ["-q", "reconstruct", str(ring_tiny / "images"), "-o", str(out), "--mvs", "sweep", "--n-depths", "32"]
+    assert main(args) == 0
+    before = read_colmap_text(out / "sparse" / "0").views[0].intrinsics
+    assert main(args + ["--fx", "300", "--fy", "300"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert not any(s.get("cached") for s in rep["stages"].values())
+    assert rep["poses"]["sfm_seconds"]["ingest"] == 0 and rep["poses"]["sfm_seconds"]["extraction"] > 0
+    for v in read_colmap_text(out / "sparse" / "0").views:
+        assert (v.intrinsics.fx, v.intrinsics.fy, v.intrinsics.cx, v.intrinsics.cy) == pytest.approx(
+            (300, 300, 119.5, 89.5))
+    assert before.fx != pytest.approx(300, abs=1)
