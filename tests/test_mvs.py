@@ -12,7 +12,9 @@ from photorecon.io.dataset import Dataset
 from photorecon.mesh import clean
 from photorecon.metrics import depth_metrics, mesh_metrics
 
-CFG = MVSConfig(n_depths=96)
+# the plane sweep (--mvs sweep); PatchMatch has its own tests in test_patchmatch.py
+CFG = MVSConfig(method="sweep", n_sources=4, n_depths=96, min_consistent=1, min_confidence=0.5)
+SWEEP = dict(method="sweep", n_sources=4, min_confidence=0.5)
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +60,7 @@ def test_mvs_skips_views_without_points(blob_small, tmp_path, caplog):
     name = ds.views[0].name
     uv, ids = ds.model.observations[name]
     ds.model.observations[name] = (uv[:0], ids[:0])
-    rep = run_mvs(ds, tmp_path / "d", MVSConfig(n_depths=32, min_consistent=1))
+    rep = run_mvs(ds, tmp_path / "d", MVSConfig(**SWEEP, n_depths=32, min_consistent=1))
     assert name in rep["skipped"] and "no sparse points" in rep["skipped"][name]
     assert not (tmp_path / "d" / f"{name}.npy").exists()
     assert any(name in r.getMessage() for r in caplog.records)
@@ -66,13 +68,17 @@ def test_mvs_skips_views_without_points(blob_small, tmp_path, caplog):
     m = ds.model
     unseen = Dataset(ds.root, SparseModel(ds.views, m.points, m.colors, m.point_ids, m.errors, {}), ds.depth_dir)
     with pytest.raises(NoDepthError, match="no view yielded depth"):
-        run_mvs(unseen, tmp_path / "e", MVSConfig(n_depths=16))
-    # a model without any sparse point (transforms.json): depth ranges come from the cameras
+        run_mvs(unseen, tmp_path / "e", MVSConfig(**SWEEP, n_depths=16))
+    # a model without any sparse point (transforms.json), not triangulated: depth ranges come from the cameras
     bare = Dataset(ds.root, SparseModel(ds.views), ds.depth_dir)
-    rep = run_mvs(bare, tmp_path / "f", MVSConfig(n_depths=32))
+    rep = run_mvs(bare, tmp_path / "f", MVSConfig(**SWEEP, n_depths=32, min_consistent=1, triangulate=False))
     assert rep["views"] >= len(ds.views) // 2
 
 
 def test_cli_mvs(blob_small, tmp_path):
-    assert main(["-q", "mvs", str(blob_small), "-o", str(tmp_path / "d"), "--n-depths", "32", "--min-consistent", "1"]) == 0
-    assert len(list((tmp_path / "d").glob("*.conf.npy"))) >= 6
+    assert main(["-q", "mvs", str(blob_small), "-o", str(tmp_path / "d"), "--n-sources", "3", "--pm-levels", "1",
+                 "--pm-iterations", "2", "--min-consistent", "1"]) == 0
+    assert len(list((tmp_path / "d").glob("*.normal.npy"))) >= 6
+    assert main(["-q", "mvs", str(blob_small), "-o", str(tmp_path / "s"), "--mvs", "sweep", "--n-depths", "32",
+                 "--min-consistent", "1"]) == 0
+    assert len(list((tmp_path / "s").glob("*.conf.npy"))) >= 6 and not list((tmp_path / "s").glob("*.normal.npy"))

@@ -77,8 +77,9 @@ def _seed(seed, it, y, x):
 
 
 @njit(cache=True, fastmath=True)
-def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk):
-    """Fill the reference window's values ``rv`` and bilateral weights ``wk``; returns (sum w, mean, var)."""
+def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
+    """Fill the reference window's values ``rv``, bilateral weights ``wk`` and sample offsets ``du, dv``
+    (clamped to the image); returns (sum w, mean, var)."""
     H, W = ref.shape
     c = ref[y, x]
     sw = 0.0
@@ -87,6 +88,8 @@ def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk):
     for k in range(sdy.shape[0]):
         v = min(max(y + sdy[k], 0), H - 1)
         u = min(max(x + sdx[k], 0), W - 1)
+        du[k] = u - x
+        dv[k] = v - y
         val = ref[v, u]
         dc = val - c
         w = sspat[k] * math.exp(-dc * dc * inv2sc2)
@@ -103,11 +106,12 @@ def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk):
 
 
 @njit(cache=True, fastmath=True)
-def _ncc(img, x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var):
-    """1 - bilaterally weighted NCC between the reference window at (x, y) and ``img`` sampled through the
-    homography ``h`` (9 values, row-major), linearised at the window's centre (an affine map: over an 11-pixel
-    window the perspective term is far below a hundredth of a pixel); 2 when the centre falls outside the
-    source image or behind it."""
+def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, h, min_var):
+    """1 - bilaterally weighted NCC between the reference window at (x, y) (offsets ``du, dv``, values ``rv``,
+    weights ``wk`` summing to ``sw``, weighted mean ``mr`` and variance ``vr``) and ``img`` sampled through the
+    homography ``h`` (9 values, row-major), linearised at the window's centre (an affine map: over an
+    11-pixel window the perspective term is far below a hundredth of a pixel); 2 when the centre falls
+    outside the source image or behind it."""
     hs, ws = img.shape
     hz = h[6] * x + h[7] * y + h[8]
     if hz <= 1e-12:
@@ -127,19 +131,9 @@ def _ncc(img, x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var):
     s1 = 0.0
     s2 = 0.0
     s12 = 0.0
-    for k in range(sdy.shape[0]):
-        dv = min(max(y + sdy[k], 0), H - 1) - y
-        du = min(max(x + sdx[k], 0), W - 1) - x
-        sx = cx + j00 * du + j01 * dv
-        sy = cy + j10 * du + j11 * dv
-        if sx < 0.0:
-            sx = 0.0
-        elif sx > xmax:
-            sx = xmax
-        if sy < 0.0:
-            sy = 0.0
-        elif sy > ymax:
-            sy = ymax
+    for k in range(du.shape[0]):
+        sx = min(max(cx + j00 * du[k] + j01 * dv[k], 0.0), xmax)
+        sy = min(max(cy + j10 * du[k] + j11 * dv[k], 0.0), ymax)
         ix = int(sx)
         iy = int(sy)
         fx = sx - ix
@@ -149,8 +143,7 @@ def _ncc(img, x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var):
         c = img[iy + 1, ix]
         d = img[iy + 1, ix + 1]
         val = a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
-        w = wk[k]
-        wv = w * val
+        wv = wk[k] * val
         s1 += wv
         s2 += wv * val
         s12 += wv * rv[k]
@@ -313,6 +306,8 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
     for y in prange(H):
         rv = np.empty(ns, np.float64)
         wk = np.empty(ns, np.float64)
+        du = np.empty(ns, np.float64)
+        dv = np.empty(ns, np.float64)
         h = np.empty(9, np.float64)
         m = np.empty(3, np.float64)
         cj = np.empty(S, np.float64)
@@ -325,10 +320,10 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
             if d <= 0 or not _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
                 cost[y, x] = 2.0 + lam_geo * delta_geo
                 continue
-            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk)
+            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             for j in range(S):
                 _homography(A, b, j, m, h)
-                c = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
                 if use_geo:
                     c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
                 cj[j] = c
@@ -365,6 +360,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
     for y in prange(H):
         rv = np.empty(ns, np.float64)
         wk = np.empty(ns, np.float64)
+        du = np.empty(ns, np.float64)
+        dv = np.empty(ns, np.float64)
         h = np.empty(9, np.float64)
         m = np.empty(3, np.float64)
         cd = np.empty(NC, np.float64)
@@ -377,7 +374,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
-            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk)
+            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             # 1. candidates
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
@@ -430,7 +427,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                         cm[i, j] = 2.0 + lam_geo * delta_geo
                         continue
                     _homography(A, b, j, m, h)
-                    c = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                    c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
                     if use_geo:
                         c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
                     cm[i, j] = c
@@ -518,7 +515,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                         if wv[j] <= 0:
                             continue
                         _homography(A, b, j, m, h)
-                        c = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
                         if use_geo:
                             c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
                         acc += wv[j] * c
@@ -546,6 +543,8 @@ def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, d
     for y in prange(H):
         rv = np.empty(ns, np.float64)
         wk = np.empty(ns, np.float64)
+        du = np.empty(ns, np.float64)
+        dv = np.empty(ns, np.float64)
         h = np.empty(9, np.float64)
         m = np.empty(3, np.float64)
         for x in range(W):
@@ -557,7 +556,20 @@ def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, d
                 for j in range(S):
                     out[j, y, x] = 2.0
                 continue
-            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk)
+            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             for j in range(S):
                 _homography(A, b, j, m, h)
-                out[j, y, x] = _ncc(srcs[j], x, y, W, H, sdy, sdx, rv, wk, sw, mr, vr, h, min_var)
+                out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
+
+
+@njit(cache=True)
+def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
+    """The kernel's cost of one reference pixel through the homography ``h`` (for tests against the slow
+    reference ``patchmatch.ncc_cost_reference``)."""
+    ns = sdy.shape[0]
+    rv = np.empty(ns, np.float64)
+    wk = np.empty(ns, np.float64)
+    du = np.empty(ns, np.float64)
+    dv = np.empty(ns, np.float64)
+    sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
+    return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)

@@ -314,8 +314,10 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     results: dict[str, DepthResult] = {}
     skipped: dict[str, str] = {}
     t0 = time.perf_counter()
+    triangulated = False
     if len(model.points) == 0 and cfg.triangulate:
         model = _triangulated(dataset)
+        triangulated = len(model.points) > 0
     no_points = len(model.points) == 0
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
@@ -396,7 +398,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         written += 1
     if not written:
         raise NoDepthError("mvs: no depth survived filtering in any view")
-    report = {"views": written, "skipped": skipped, "sweep_seconds": t_sweep, "consistency": consistency,
+    report = {"views": written, "skipped": skipped, "method": cfg.method, "depth_seconds": t_sweep,
+              "sparse_points": int(len(model.points)), "triangulated": triangulated, "consistency": consistency,
               "seconds_per_view": t_sweep / max(len(results), 1), "per_view": stats}
     atomic_write_json(out / "mvs_report.json", report)
     return report
