@@ -18,9 +18,13 @@ Every kernel takes contiguous arrays and scalars, and the slow, obviously correc
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
-from numba import njit, prange
+
+# numba finds Open3D's older TBB, says it will not use it, and uses its OpenMP/workqueue layer instead
+warnings.filterwarnings("ignore", message="The TBB threading layer requires")
+from numba import njit, prange  # noqa: E402
 
 N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
 N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)
@@ -338,7 +342,7 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
 @njit(parallel=True, cache=True, fastmath=True)
 def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
-            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, refine, depth, normal, cost):
+            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, refine, same_depth, same_cos, depth, normal, cost):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
 
     1. candidates: the current hypothesis and, from each of the 8 regions around it (other colour), the
@@ -350,6 +354,9 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
     3. the candidate with the lowest weighted cost (photometric + ``lam_geo`` x geometric when ``use_geo``)
        becomes the pixel's hypothesis;
     4. refinement (``refine``): perturbed and random depths and normals, with the same view weights.
+
+    Candidates within ``same_depth`` (relative) and whose normals' cosine exceeds ``same_cos`` of an earlier
+    candidate share its costs (neighbours of a converged surface propagate nearly the same plane).
     """
     H, W = ref.shape
     S = srcs.shape[0]
@@ -414,8 +421,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                 ok[i] = d > 0 and _plane_m(d, cn[i, 0], cn[i, 1], cn[i, 2], r0, r1, r2, Kinv, m)
                 same = -1
                 for q in range(i):  # converged neighbours often propagate the very same plane
-                    if (abs(cd[q] - d) <= 1e-6 * d and cn[q, 0] * cn[i, 0] + cn[q, 1] * cn[i, 1]
-                            + cn[q, 2] * cn[i, 2] > 0.999999):
+                    if (abs(cd[q] - d) <= same_depth * d and cn[q, 0] * cn[i, 0] + cn[q, 1] * cn[i, 1]
+                            + cn[q, 2] * cn[i, 2] > same_cos):
                         same = q
                         break
                 if same >= 0:

@@ -176,7 +176,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
             k.pm_pass(color, it, ref_img, srcs, g.A, g.b, g.Kr, g.Kinv, g.R, g.t, Kd, sdepth, use_geo, lam, delta,
                       params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var,
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
-                      float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), True, depth, normal, cost)
+                      float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), True,
+                      float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), depth, normal, cost)
     return depth, normal, cost
 
 
@@ -205,8 +206,9 @@ def patchmatch_all(jobs: list[PMJob], image: Callable[[str, View], np.ndarray], 
             for job in bar(jobs, desc=f"patchmatch {r + 1}/{len(rounds)}"):
                 name = job.view.name
                 ref = level_view(job.view, lvl)
-                srcs = [level_view(by_name[s].view, lvl) if s in by_name else None for s in job.sources]
-                src_names = [s for s, v in zip(job.sources, srcs) if v is not None]
+                names = job.sources if first or cfg.pm_fine_sources <= 0 else job.sources[: cfg.pm_fine_sources]
+                srcs = [level_view(by_name[s].view, lvl) if s in by_name else None for s in names]
+                src_names = [s for s, v in zip(names, srcs) if v is not None]
                 srcs = [v for v in srcs if v is not None]
                 init = None
                 if not first:
