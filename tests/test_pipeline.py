@@ -12,12 +12,17 @@ from photorecon.io.dataset import read_model
 from photorecon.metrics import align_cameras, mesh_metrics
 
 
+# PatchMatch on one pyramid level with 4 sources: the pipeline is under test here (test_patchmatch.py tests
+# the depth itself); the defaults are for 1600-px photos
+LIGHT_PM = ["--n-sources", "4", "--pm-levels", "1", "--pm-iterations", "4", "--min-consistent", "1"]
+
+
 @pytest.fixture(scope="module")
 def recon(sphere30, tmp_path_factory):
     out = tmp_path_factory.mktemp("recon") / "out"
     before = tree_hash(sphere30 / "images")
     t0 = time.perf_counter()
-    rc = main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--n-depths", "96"])
+    rc = main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), *LIGHT_PM])
     return {"rc": rc, "out": out, "seconds": time.perf_counter() - t0, "before": before}
 
 
@@ -47,7 +52,7 @@ def test_reconstruct_from_images_alone(recon, sphere30):
 def test_rerun_is_a_noop(recon, sphere30):
     mesh_before = (recon["out"] / "mesh.ply").read_bytes()
     t0 = time.perf_counter()
-    assert main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(recon["out"]), "--n-depths", "96"]) == 0
+    assert main(["-q", "reconstruct", str(sphere30 / "images"), "-o", str(recon["out"]), *LIGHT_PM]) == 0
     assert time.perf_counter() - t0 < 0.1 * recon["seconds"]
     assert (recon["out"] / "mesh.ply").read_bytes() == mesh_before
     rep = json.loads((recon["out"] / "report.json").read_text())
@@ -61,7 +66,8 @@ def test_interrupted_run_resumes(sphere30, tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     real = fusion.fuse
     monkeypatch.setattr(fusion, "fuse", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt()))
-    args = ["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--n-depths", "64"]
+    args = ["-q", "reconstruct", str(sphere30 / "images"), "-o", str(out), "--mvs", "sweep", "--n-depths", "64",
+            "--min-consistent", "1"]
     assert main(args) == 130
     assert "interrupted" in capsys.readouterr().err
     assert not (out / "mesh.ply").exists() and not (out / ".stages" / "fusion.json").exists()

@@ -56,6 +56,9 @@ def main() -> None:
                 rows.append(run_scene(scene.strip(), args, Path(t)))
             except Exception as exc:  # a scene that fails is reported, not hidden
                 rows.append({"scene": scene, "error": f"{type(exc).__name__}: {exc}"})
+            print(json.dumps(rows[-1], default=str), flush=True)
+            if args.json:  # after every scene: a long run that is stopped keeps what it measured
+                Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
     print(f"{'scene':6} {'synth s':>7} {'poses s':>7} {'depth s':>7} {'fuse s':>7} {'peak MB':>7} {'reg':>6} "
           f"{'rot deg':>8} {'ctr %':>7} {'depths':>6} {'F@1%':>6} {'F@.5%':>6} {'Cham%':>7}")
     for r in rows:

@@ -53,14 +53,14 @@ class MVSConfig:
     min_angle_deg: float = field(default=2.0, metadata={"help": "view selection: minimum triangulation angle"})
     pm_levels: int = field(default=3, metadata={"help": "patchmatch: pyramid levels (each halves the image)"})
     pm_iterations: int = field(default=5, metadata={"help": "patchmatch: iterations at the coarsest level"})
-    pm_fine_iterations: int = field(default=2, metadata={"help": "patchmatch: iterations at each finer level"})
+    pm_fine_iterations: int = field(default=1, metadata={"help": "patchmatch: iterations at each finer level"})
     pm_final_iterations: int = field(default=1, metadata={"help": "patchmatch: extra geometric-consistency iterations at full working resolution"})
     pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius in pixels"})
     pm_stride: int = field(default=2, metadata={"help": "patchmatch: NCC window sampled every this many pixels"})
     pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: bilateral NCC weight's grey-level sigma (grey in 0..1)"})
     pm_fine_sources: int = field(default=0, metadata={"help": "patchmatch: after the coarsest level, match only the best this many of the source views (0 = all)"})
-    pm_same_depth: float = field(default=1e-6, metadata={"help": "patchmatch: candidates this close in relative depth (and --pm-same-normal-deg in normal) share one cost evaluation"})
-    pm_same_normal_deg: float = field(default=0.1, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees"})
+    pm_same_depth: float = field(default=1e-3, metadata={"help": "patchmatch: candidates this close in relative depth (and --pm-same-normal-deg in normal) share one cost evaluation"})
+    pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees"})
     geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
     geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (pixels of reprojection error)"})
     triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed, for view selection and depth ranges"})
@@ -68,6 +68,14 @@ class MVSConfig:
     n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)"})
     window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)"})
     best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel"})
+
+
+# Named settings for a caller that needs other values than the defaults (which are for 1600-px photos):
+# "fast" is PatchMatch for small images and previews (the demo): 4 sources, 2 pyramid levels, fewer iterations.
+MVS_PRESETS: dict[str, dict] = {
+    "fast": dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=1, pm_final_iterations=1,
+                 min_consistent=1),
+}
 
 
 @dataclass
