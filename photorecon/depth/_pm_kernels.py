@@ -135,9 +135,17 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, h, min_var):
     s1 = 0.0
     s2 = 0.0
     s12 = 0.0
+    # the window's footprint in the source: when it lies inside the image, no sample needs clamping
+    rad = max(abs(du[0]), abs(dv[0]))
+    ex = (abs(j00) + abs(j01)) * rad
+    ey = (abs(j10) + abs(j11)) * rad
+    inside = cx - ex >= 0.0 and cx + ex <= xmax and cy - ey >= 0.0 and cy + ey <= ymax
     for k in range(du.shape[0]):
-        sx = min(max(cx + j00 * du[k] + j01 * dv[k], 0.0), xmax)
-        sy = min(max(cy + j10 * du[k] + j11 * dv[k], 0.0), ymax)
+        sx = cx + j00 * du[k] + j01 * dv[k]
+        sy = cy + j10 * du[k] + j11 * dv[k]
+        if not inside:
+            sx = min(max(sx, 0.0), xmax)
+            sy = min(max(sy, 0.0), ymax)
         ix = int(sx)
         iy = int(sy)
         fx = sx - ix
