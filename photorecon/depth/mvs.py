@@ -345,6 +345,16 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
             continue
         plan.append((v, srcs, rng))
+    planned = {v.name for v, _, _ in plan}
+    kept = []
+    for v, srcs, rng in plan:  # PatchMatch's geometric term reads the sources' own depth maps
+        srcs = [s for s in srcs if s.name in planned]
+        if srcs:
+            kept.append((v, srcs, rng))
+        else:
+            skipped[v.name] = "every source view of it was skipped"
+            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
+    plan = kept
     if cfg.method == "sweep":
         for v, srcs, rng in bar(plan, desc="mvs depth (sweep)"):
             ref_img, ref_w = image(v)
@@ -363,13 +373,13 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
                 g = cv2.resize(g, lv.intrinsics.size, interpolation=cv2.INTER_AREA)
             return g
 
-        jobs = [PMJob(image(v)[1], [s.name for s in srcs], rng[0], rng[1], model.points_seen_by(v.name))
-                for v, srcs, rng in plan]
-        for name, (depth, normal, cost, wv, _secs) in patchmatch_all(jobs, level_image, cfg).items():
+        jobs = {v.name: PMJob(image(v)[1], [s.name for s in srcs], rng[0], rng[1], model.points_seen_by(v.name))
+                for v, srcs, rng in plan}
+        for name, (depth, normal, cost, wv, _) in patchmatch_all(list(jobs.values()), level_image, cfg).items():
             conf = np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32)
             depth = depth.copy()
             depth[(conf < cfg.min_confidence) | ~np.isfinite(depth)] = 0
-            results[name] = DepthResult(depth, conf, wv, next(j.sources for j in jobs if j.view.name == name), normal)
+            results[name] = DepthResult(depth, conf, wv, jobs[name].sources, normal)
     for v, _, _ in plan:  # masked pixels (masks/NAME.png or the image's alpha) have no depth
         r = results.get(v.name)
         mask = dataset.mask(v) if r is not None else None
@@ -378,7 +388,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             if mask.shape != (h, w):
                 mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
             r.depth[~mask] = 0
-    t_sweep = time.perf_counter() - t0
+    t_depth = time.perf_counter() - t0
     if not results:
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
     consistency: dict = {}
@@ -409,8 +419,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         written += 1
     if not written:
         raise NoDepthError("mvs: no depth survived filtering in any view")
-    report = {"views": written, "skipped": skipped, "method": cfg.method, "depth_seconds": t_sweep,
+    report = {"views": written, "skipped": skipped, "method": cfg.method, "depth_seconds": t_depth,
               "sparse_points": int(len(model.points)), "triangulated": triangulated, "consistency": consistency,
-              "seconds_per_view": t_sweep / max(len(results), 1), "per_view": stats}
+              "seconds_per_view": t_depth / max(len(results), 1), "per_view": stats}
     atomic_write_json(out / "mvs_report.json", report)
     return report
