@@ -229,25 +229,37 @@ def _run_sfm(args):
 
 @command
 def convert(sub):
-    p = sub.add_parser("convert", help="convert cameras between COLMAP (text/binary), transforms.json and PyTorch3D",
-                       description="SRC: COLMAP folder (text or binary), dataset folder or transforms.json. "
-                                   "DST: a folder (COLMAP, --to colmap-text|colmap-bin), a .json file "
-                                   "(transforms.json, or PyTorch3D cameras with --to pytorch3d).")
+    p = sub.add_parser("convert", help="convert cameras between COLMAP, transforms.json, NeRF Blender, NeuS, LLFF "
+                                       "and PyTorch3D",
+                       description="SRC: COLMAP folder (text or binary), dataset folder, transforms.json or "
+                                   "transforms_SPLIT.json (NeRF Blender), cameras_sphere.npz (IDR/NeuS, images in "
+                                   "image/ beside it), poses_bounds.npy (LLFF, images in images/ beside it). "
+                                   "DST: a folder (COLMAP), a .json file (transforms.json; NeRF Blender when named "
+                                   "transforms_train|val|test.json; PyTorch3D with --to pytorch3d), a .npz (NeuS) "
+                                   "or a .npy (LLFF). NeuS and LLFF pair camera i with the i-th sorted image.")
     p.add_argument("src")
     p.add_argument("dst")
-    p.add_argument("--to", choices=["auto", "colmap-text", "colmap-bin", "transforms", "pytorch3d"], default="auto",
-                   help="output format (default: from DST: folder -> colmap-text, .json -> transforms)")
+    p.add_argument("--to", choices=["auto", "colmap-text", "colmap-bin", "transforms", "blender", "neus", "llff",
+                                    "pytorch3d"], default="auto",
+                   help="output format (default: from DST: folder -> colmap-text, .json -> transforms or blender, "
+                        ".npz -> neus, .npy -> llff)")
     p.add_argument("--world", choices=["none", "nerfstudio", "instant-ngp"], default="none",
                    help="transforms.json world orientation to write (default: none = photorecon's world)")
     p.add_argument("--src-world", choices=["none", "nerfstudio", "instant-ngp"], default=None,
                    help="world orientation of a transforms.json SRC (default: as recorded in the file)")
+    p.add_argument("--neus-world", choices=["normalized", "original"], default="normalized",
+                   help="world of a NeuS SRC: normalized (world_mat @ scale_mat, the unit-sphere frame NeuS trains "
+                        "in; default) or original (world_mat alone)")
+    p.add_argument("--bounds", nargs=2, type=float, metavar=("NEAR", "FAR"),
+                   help="LLFF output: near and far depth for every image (default: from the sparse points)")
     p.set_defaults(func=_run_convert)
 
 
 def _run_convert(args):
     from .io.convert import convert_cameras
 
-    dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world)
+    dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world, args.neus_world,
+                          tuple(args.bounds) if args.bounds else None)
     print(f"convert: {args.src} -> {dst}")
     return 0
 

@@ -5,11 +5,20 @@
   The file records it as ``"photorecon_world"``; nerfstudio's variant also gets ``applied_transform``.
 * ``cx, cy`` follow nerfstudio and instant-ngp, which cast rays through ``pixel + 0.5``: the centre of the
   top-left pixel is (0.5, 0.5), like COLMAP. Converted here, once.
-* Frame paths are confined to the file's folder: absolute paths and ``..`` escapes are refused.
+* Frame paths are confined to the file's folder: absolute paths and ``..`` escapes are refused. A path without
+  an extension (the Blender-synthetic ``./train/r_0``) names ``./train/r_0.png``.
+* Intrinsics: ``fl_x, fl_y, cx, cy, w, h`` (+ ``k1 k2 p1 p2``) at the top level, each overridable per frame.
+  The NeRF Blender-synthetic files (``transforms_{train,val,test}.json``) give only ``camera_angle_x`` (and
+  optionally ``camera_angle_y``): ``fl_x = 0.5 W / tan(0.5 camera_angle_x)`` with W, H from the image file,
+  and the principal point at the image centre, ``cx, cy = W/2, H/2`` in NeRF pixels (= (W-1)/2, (H-1)/2 in
+  photorecon's). Their RGBA images are read as stored (``read_image`` drops alpha without compositing on a
+  background) and their alpha is the view's mask (``Dataset.mask``).
 """
 from __future__ import annotations
 
 import json
+import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +28,10 @@ from ..conventions import NERF_WORLDS, nerf_from_opencv, opencv_from_nerf
 from ..errors import InputDataError
 from .atomic import atomic_write_json
 
-_INTR_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "p1", "p2")
+log = logging.getLogger("photorecon")
+
+_INTR_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "p1", "p2", "camera_angle_x", "camera_angle_y")
+BLENDER_SPLITS = ("train", "val", "test")
 
 
 def _intr_dict(intr: Intrinsics) -> dict:
@@ -72,6 +84,41 @@ def confined(root: Path, rel: str, what: str) -> Path:
     return p
 
 
+def _image_file(p: Path) -> Path:
+    """``p``, or ``p.png`` when ``p`` has no extension and does not exist (Blender-synthetic file paths)."""
+    return p.with_name(p.name + ".png") if not p.suffix and not p.exists() else p
+
+
+def image_size(path: Path, what: str) -> tuple[int, int]:
+    """(width, height) of an image file, from its header (the pixels are not decoded)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except FileNotFoundError:
+        raise InputDataError(f"{what}: image {path} not found; its size is needed for the focal length") from None
+    except (OSError, UnidentifiedImageError) as exc:
+        raise InputDataError(f"{what}: cannot read image {path} ({exc})") from None
+
+
+def _blender_intrinsics(src: dict, image: Path, where: str) -> dict:
+    """fl_x, fl_y, cx, cy, w, h (NeRF pixels) from ``camera_angle_x`` (+ ``camera_angle_y``), W and H from
+    ``w``/``h`` if given, else from the image file."""
+    if "w" in src and "h" in src:
+        W, H = int(src["w"]), int(src["h"])
+    else:
+        W, H = image_size(_image_file(image), where)
+    ax = float(src["camera_angle_x"])
+    ay = float(src.get("camera_angle_y", 0.0))
+    for name, a in (("camera_angle_x", ax), ("camera_angle_y", ay if "camera_angle_y" in src else 1.0)):
+        if not 0 < a < math.pi:
+            raise InputDataError(f"{where}: {name} = {a} is not a field of view in radians (0 < angle < pi)")
+    fl_x = 0.5 * W / math.tan(0.5 * ax)
+    fl_y = 0.5 * H / math.tan(0.5 * ay) if "camera_angle_y" in src else fl_x
+    return {"fl_x": fl_x, "fl_y": fl_y, "cx": W / 2.0, "cy": H / 2.0, "w": W, "h": H, **src}
+
+
 def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
     """Views from a transforms.json. ``world`` defaults to the file's ``photorecon_world``, else nerfstudio's
     ``applied_transform`` if present, else "none". ``View.image_path`` is the confined absolute image path."""
@@ -99,9 +146,12 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
         where = f"{path} frame {i}"
         try:
             src = {**{k: data[k] for k in _INTR_KEYS if k in data}, **{k: fr[k] for k in _INTR_KEYS if k in fr}}
+            if "fl_x" not in src and "camera_angle_x" in src:
+                src = _blender_intrinsics(src, confined(root, str(fr["file_path"]), where), where)
             for k in ("fl_x", "cx", "cy", "w", "h"):
                 if k not in src:
-                    raise InputDataError(f"{where}: missing intrinsics key {k!r}")
+                    raise InputDataError(f"{where}: missing intrinsics key {k!r} (give fl_x, cx, cy, w, h or "
+                                         "camera_angle_x at the top level or in the frame)")
             dist = {k: float(src.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")}
             model = "OPENCV" if any(dist.values()) else "PINHOLE"
             intr = Intrinsics(int(src["w"]), int(src["h"]), float(src["fl_x"]), float(src.get("fl_y", src["fl_x"])),
@@ -111,12 +161,64 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
             file_path = str(fr["file_path"])
         except (KeyError, TypeError, ValueError) as exc:
             raise InputDataError(f"{where}: {exc}") from None
-        img = confined(root, file_path, where)
-        if not img.suffix and not img.exists():
-            img = img.with_suffix(".png")
+        img = _image_file(confined(root, file_path, where))
         extra = {"image_file": img.name}
         for key in ("depth_file_path", "mask_path"):
             if key in fr:
                 extra[key] = str(confined(root, str(fr[key]), where))
         views.append(View(img.stem, intr, T, image_path=str(img), extra=extra))
     return views
+
+
+def read_blender(path: str | Path) -> list[View]:
+    """Views of the NeRF Blender-synthetic layout: one ``transforms_SPLIT.json`` file, or a folder holding
+    ``transforms_train.json`` / ``transforms_val.json`` / ``transforms_test.json`` (all splits present, in that
+    order; view names get a ``SPLIT_`` prefix, since every split has its own ``r_0``)."""
+    path = Path(path)
+    if path.is_file():
+        return read_transforms(path)
+    files = [(s, path / f"transforms_{s}.json") for s in BLENDER_SPLITS if (path / f"transforms_{s}.json").is_file()]
+    if not files:
+        raise InputDataError(f"{path}: no transforms_train.json, transforms_val.json or transforms_test.json")
+    views = []
+    for split, f in files:
+        for v in read_transforms(f):
+            name = f"{split}_{v.name}" if len(files) > 1 else v.name
+            views.append(View(name, v.intrinsics, v.cam_from_world, image_path=v.image_path, extra=v.extra))
+    return views
+
+
+def write_blender(views: list[View], path: str | Path, tol_px: float = 0.5) -> Path:
+    """Write ``views`` as a NeRF Blender-synthetic ``transforms_SPLIT.json`` (SPLIT from the file name, else
+    "train"): ``camera_angle_x`` (+ ``camera_angle_y`` when fy != fx), frames with ``file_path`` =
+    ``./SPLIT/STEM`` (no extension) and ``transform_matrix`` in photorecon's world. The format holds one
+    pinhole camera with its principal point at the image centre: other cameras are refused
+    (``InputDataError``), principal points up to ``tol_px`` off centre are written as centred (logged)."""
+    path = Path(path)
+    if not views:
+        raise InputDataError(f"{path}: no cameras to write")
+    split = path.stem[len("transforms_"):] if path.stem.startswith("transforms_") else "train"
+    intr = views[0].intrinsics
+    for v in views:
+        i = v.intrinsics
+        if i.size != intr.size or abs(i.fx - intr.fx) > 1e-6 * intr.fx or abs(i.fy - intr.fy) > 1e-6 * intr.fy:
+            raise InputDataError(f"{path}: the Blender format holds one camera, but view {v.name} has "
+                                 f"{i.width}x{i.height} fx={i.fx:g} and view {views[0].name} {intr.width}x{intr.height} "
+                                 f"fx={intr.fx:g}; write --to transforms (per-frame intrinsics) instead")
+        if i.has_distortion:
+            raise InputDataError(f"{path}: view {v.name} has lens distortion, which the Blender format cannot hold; "
+                                 "undistort first or write --to transforms")
+        off = max(abs(i.cx - (i.width - 1) / 2), abs(i.cy - (i.height - 1) / 2))
+        if off > tol_px:
+            raise InputDataError(f"{path}: view {v.name}'s principal point ({i.cx:g}, {i.cy:g}) is {off:.2f} px off "
+                                 "the image centre, which the Blender format cannot hold; write --to transforms instead")
+        if off > 1e-6:
+            log.warning("%s: view %s's principal point is %.3f px off centre; written as centred", path, v.name, off)
+    W, H = intr.size
+    out: dict = {"camera_angle_x": 2 * math.atan(0.5 * W / intr.fx)}
+    if abs(intr.fx - intr.fy) > 1e-9 * intr.fx:
+        out["camera_angle_y"] = 2 * math.atan(0.5 * H / intr.fy)
+    out["photorecon_world"] = "none"
+    out["frames"] = [{"file_path": f"./{split}/{Path(v.extra.get('image_file', v.name)).stem}",
+                      "transform_matrix": nerf_from_opencv(v.cam_from_world, "none").tolist()} for v in views]
+    return atomic_write_json(path, out)
