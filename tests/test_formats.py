@@ -80,6 +80,7 @@ def test_blender_camera_angle_y_and_folder_of_splits(tmp_path):
     model = read_model(tmp_path)
     assert [w.name for w in model.views] == ["train_r_0", "test_r_0"]  # every split has its own r_0
     assert model.views[1].image_path.endswith("test/r_0.png")
+    assert [w.extra["image_file"] for w in model.views] == ["train/r_0.png", "test/r_0.png"]
 
 
 def test_blender_alpha_is_the_mask(tmp_path):

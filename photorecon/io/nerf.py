@@ -173,7 +173,8 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
 def read_blender(path: str | Path) -> list[View]:
     """Views of the NeRF Blender-synthetic layout: one ``transforms_SPLIT.json`` file, or a folder holding
     ``transforms_train.json`` / ``transforms_val.json`` / ``transforms_test.json`` (all splits present, in that
-    order; view names get a ``SPLIT_`` prefix, since every split has its own ``r_0``)."""
+    order; view names get a ``SPLIT_`` prefix and ``extra["image_file"]`` the split folder, ``train/r_0.png``,
+    since every split has its own ``r_0``: ``reconstruct SCENE/ --poses SCENE/`` pairs the right images)."""
     path = Path(path)
     if path.is_file():
         return read_transforms(path)
@@ -183,8 +184,11 @@ def read_blender(path: str | Path) -> list[View]:
     views = []
     for split, f in files:
         for v in read_transforms(f):
-            name = f"{split}_{v.name}" if len(files) > 1 else v.name
-            views.append(View(name, v.intrinsics, v.cam_from_world, image_path=v.image_path, extra=v.extra))
+            if len(files) > 1:
+                rel = Path(v.image_path).resolve().relative_to(path.resolve()).as_posix()
+                v = View(f"{split}_{v.name}", v.intrinsics, v.cam_from_world, image_path=v.image_path,
+                         extra={**v.extra, "image_file": rel})
+            views.append(v)
     return views
 
 
