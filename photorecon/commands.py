@@ -11,6 +11,11 @@ def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     p.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder not made by photorecon")
 
 
+def _masks_arg(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--masks", metavar="DIR", help=f"mask folder: NAME.png or COLMAP's NAME.EXT.png (e.g. IMG_1.jpg.png) "
+                                                  f"at the image's size, 0 = ignore the pixel; {what}")
+
+
 @command
 def synth(sub):
     from .synthetic import SynthConfig
@@ -42,6 +47,7 @@ def fuse(sub):
     p.add_argument("dataset", help="dataset folder (synth layout)")
     _out_args(p)
     p.add_argument("--depth-dir", help="depth maps folder (default: DATASET/depth)")
+    _masks_arg(p, "default: DATASET/masks, else the images' alpha channel")
     p.add_argument("--formats", default="ply", help="comma-separated mesh formats: ply,obj,glb (default: ply)")
     add_config_arguments(p, FusionConfig)
     add_config_arguments(p, CleanConfig)
@@ -54,7 +60,8 @@ def _run_fuse(args):
 
     formats = parse_formats(args.formats)
     path = fuse_dataset(args.dataset, args.out, config_from_args(FusionConfig, args),
-                        config_from_args(CleanConfig, args), args.depth_dir, args.overwrite, formats)
+                        config_from_args(CleanConfig, args), args.depth_dir, args.overwrite, formats,
+                        masks_dir=args.masks)
     print(f"fuse: mesh written to {path}")
     return 0
 
@@ -210,17 +217,20 @@ def sfm(sub):
     p.add_argument("images", help="image folder or video file (never written to)")
     _out_args(p)
     p.add_argument("--force", action="store_true", help="recompute every stage instead of reusing cached ones")
+    _masks_arg(p, "no features there (the images' alpha channel counts too); undistorted into OUT/masks")
     add_config_arguments(p, SfMConfig)
     p.set_defaults(func=_run_sfm)
 
 
 def _run_sfm(args):
     from .io.output import prepare_output
-    from .sfm import SfMConfig, run_sfm
+    from .sfm import SfMConfig, check_sfm_masks, run_sfm
 
     cfg = config_from_args(SfMConfig, args)
-    out = prepare_output(args.out, args.overwrite, inputs=(args.images,))
-    res = run_sfm(args.images, out, cfg, force=args.force)
+    if args.masks:
+        check_sfm_masks(args.images, args.masks)  # before anything is written
+    out = prepare_output(args.out, args.overwrite, inputs=(args.images,) + ((args.masks,) if args.masks else ()))
+    res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
     n = len(res.registered) + len(res.unregistered)
     print(f"sfm: {len(res.registered)} of {n} images registered, {len(res.model.points)} sparse points -> "
           f"{out}/sparse/0, {out}/transforms.json" + (f" (reused: {', '.join(res.cached)})" if res.cached else ""))
@@ -274,6 +284,7 @@ def mvs(sub):
                                    "and NAME.png to DATASET/depth (or -o DIR).")
     p.add_argument("dataset", help="dataset folder (images/ + sparse/0 or transforms.json)")
     p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
+    _masks_arg(p, "no depth there (default: DATASET/masks, else the images' alpha channel)")
     add_config_arguments(p, MVSConfig)
     p.set_defaults(func=_run_mvs)
 
@@ -282,7 +293,7 @@ def _run_mvs(args):
     from .depth.mvs import MVSConfig, run_mvs
     from .io.dataset import Dataset
 
-    ds = Dataset.open(args.dataset)
+    ds = Dataset.open(args.dataset, masks_dir=args.masks)
     rep = run_mvs(ds, args.out, config_from_args(MVSConfig, args))
     where = args.out or f"{args.dataset}/depth"
     print(f"mvs: depth for {rep['views']} of {len(ds.views)} views ({rep['seconds_per_view']:.2f} s/view) -> {where}")

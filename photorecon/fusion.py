@@ -526,9 +526,9 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> 
 
 
 def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, depth_dir=None,
-                 overwrite: bool = False, formats: tuple[str, ...] = ("ply",)):
+                 overwrite: bool = False, formats: tuple[str, ...] = ("ply",), masks_dir=None):
     """``photorecon fuse``: dataset folder (synth layout) -> ``out/mesh.ply`` (+ other formats, preview.png).
-    Returns the mesh path."""
+    ``masks_dir``: masks (NAME.png or NAME.EXT.png, 0 = ignore) instead of DATASET/masks. Returns the mesh path."""
     from pathlib import Path
 
     from .io.dataset import Dataset
@@ -537,9 +537,9 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     from .preview import render_preview
 
     cfg = cfg or FusionConfig()
-    ds = Dataset.open(root, depth_dir)
+    ds = Dataset.open(root, depth_dir, masks_dir)
     frames = load_frames(ds, cfg)
-    out = prepare_output(out, overwrite, inputs=(root,))
+    out = prepare_output(out, overwrite, inputs=(root,) + ((masks_dir,) if masks_dir else ()))
     mesh = fuse(frames, cfg, ds.model.points)
     mesh = clean(mesh, clean_cfg or CleanConfig())
     path = Path(out) / "mesh.ply"

@@ -5,6 +5,7 @@ OUT layout::
     OUT/images/            undistorted images the depth stage used
     OUT/sparse/0/          COLMAP text model (pinhole cameras, sparse points)
     OUT/transforms.json    the same cameras, NeRF convention
+    OUT/masks/             NAME.png: --masks or the images' alpha channels, undistorted like the images
     OUT/depth/             NAME.npy (+ NAME.conf.npy) and NAME.png previews
     OUT/mesh.ply, mesh.glb the cleaned, fused mesh
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
@@ -54,6 +55,7 @@ class ReconstructConfig:
     depth_model: str | None = field(default=None, metadata={"help": "monocular depth from this ONNX model (MiDaS-style), aligned to the SfM points"})
     depth_preset: str | None = field(default=None, metadata={"help": "preset for --depth-model (see 'photorecon depth --help')"})
     formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write (ply, obj, glb)"})
+    masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or COLMAP's NAME.EXT.png (e.g. IMG_1.jpg.png) at the image's size, 0 = ignore the pixel (no features, depth or surface there); undistorted into OUT/masks. Without it the images' alpha channel is the mask"})
 
 
 @dataclass
@@ -66,13 +68,14 @@ class StageConfigs:
     clean: CleanConfig = field(default_factory=CleanConfig)
 
 
-def _undistort_given(model, images_dir: Path, out: Path):
+def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
     """Given cameras: copy (and, for distorted cameras, undistort with OpenCV) the images into OUT/images.
-    An image's alpha channel (RGBA, grey + alpha) becomes OUT/masks/NAME.png (255 where alpha > 0),
-    undistorted like the image, so the depth and fusion stages use it as a mask."""
+    An image's mask in ``masks_dir`` (NAME.EXT.png or NAME.png, 0 = ignore), else its alpha channel (RGBA,
+    grey + alpha), becomes OUT/masks/NAME.png (255 where > 0), undistorted like the image, so the depth and
+    fusion stages use it as a mask."""
     from .cameras import View
     from .io.colmap_text import SparseModel
-    from .io.images import read_alpha, read_image, write_image
+    from .io.images import mask_file, read_alpha, read_image, read_mask, write_image
 
     img_out, mask_out = out / "images", out / "masks"
     img_out.mkdir(parents=True, exist_ok=True)
@@ -89,8 +92,13 @@ def _undistort_given(model, images_dir: Path, out: Path):
         if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
             raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
-        alpha = read_alpha(src)
-        mask = None if alpha is None else np.where(alpha > 0, 255, 0).astype(np.uint8)
+        user_mask = mask_file(masks_dir, src.name) if masks_dir else None
+        if user_mask is not None:
+            m = read_mask(user_mask, (img.shape[1], img.shape[0]), f"image {src.name}")
+        else:
+            alpha = read_alpha(src)
+            m = None if alpha is None else alpha > 0
+        mask = None if m is None else np.where(m, 255, 0).astype(np.uint8)
         intr = v.intrinsics
         if intr.has_distortion:
             dist = np.array([intr.k1, intr.k2, intr.p1, intr.p2])
@@ -137,7 +145,13 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
     if run.depth_model and not Path(run.depth_model).is_file():
         raise BadArgumentError(f"--depth-model: {run.depth_model}: no such file")
-    out = prepare_output(out, overwrite, inputs=(images,) + ((run.depth,) if run.depth != "mvs" else ()))
+    masks = Path(run.masks) if run.masks else None
+    if masks is not None:  # before anything is written
+        from .sfm import check_sfm_masks
+
+        check_sfm_masks(images, masks)
+    out = prepare_output(out, overwrite, inputs=(images,) + ((run.depth,) if run.depth != "mvs" else ())
+                         + ((masks,) if masks else ()))
     stages = Stages(out / ".stages", force)
     warnings: list[str] = []
     handler = _WarningCollector(warnings)
@@ -147,12 +161,12 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         def poses() -> dict:
             if run.poses:
                 shutil.rmtree(out / "images", ignore_errors=True)  # no image left from an earlier SfM run
-                model = _undistort_given(read_model(run.poses), images, out)
+                model = _undistort_given(read_model(run.poses), images, out, masks)
                 write_colmap_text(model, out / "sparse" / "0")
                 write_transforms(model.views, out / "transforms.json")
                 info = {"source": run.poses, "registered": len(model.views), "unregistered": []}
             else:
-                res = run_sfm(images, out, cfgs.sfm, force=force)
+                res = run_sfm(images, out, cfgs.sfm, force=force, masks=masks)
                 info = {"source": "sfm", "registered": len(res.registered), "unregistered": res.unregistered,
                         "sfm_seconds": res.seconds}
             log.info("poses: %d images registered", info["registered"])
@@ -160,9 +174,10 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
         sfm_inputs = None if run.poses else {"settings": asdict(cfgs.sfm), "intrinsics":
                                              cfgs.sfm.intrinsics and fingerprint(cfgs.sfm.intrinsics)}
+        # a changed mask folder reruns poses (SfM features, or the undistorted masks) and all that follows
         stages.run("poses", {"images": fingerprint(images), "poses": run.poses and fingerprint(run.poses),
-                             "sfm": sfm_inputs},
-                   poses, outputs=[out / "images", out / "sparse" / "0", out / "transforms.json"])
+                             "sfm": sfm_inputs, "masks": masks and fingerprint(masks)},
+                   poses, outputs=[out / "images", out / "sparse" / "0", out / "transforms.json", out / "masks"])
         ds = Dataset.open(out)
 
         # 2. depth: OUT/depth

@@ -7,6 +7,8 @@ ingest (oriented copies of the images, ``OUT/colmap/images``) -> ``extract`` (SI
 -> ``match`` (exhaustive / sequential, chosen by count; ``OUT/colmap/database.db``) -> ``map`` (incremental or
 global; the largest model, ``OUT/colmap/sparse``) -> ``undistort`` to pinhole images. Outputs in the synth
 layout: ``OUT/images/`` (undistorted), ``OUT/sparse/0/`` (COLMAP text, pinhole) and ``OUT/transforms.json``.
+Masks (a user's folder, else the images' alpha) go to extraction as ``OUT/colmap/masks/NAME.EXT.png`` (COLMAP's
+naming) and, undistorted, to ``OUT/masks/NAME.png``.
 Stage markers (settings hash, seconds, peak memory): ``OUT/colmap/.stages/``.
 """
 from __future__ import annotations
@@ -161,14 +163,57 @@ def camera_groups(images: list, cfg: SfMConfig) -> list[dict]:
     return cameras
 
 
-def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfig) -> Path:
-    """SIFT features of the images in ``cameras`` (see ``camera_groups``) into a new COLMAP database."""
+def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
+    """A user's mask folder against an image folder, before anything is written: ``{image name: mask}``.
+    Raises ``InputDataError`` naming the folder (missing, no mask matches an image name) or the mask (not
+    at its image's size). For a video only the folder is checked here; its frames' masks are checked when
+    they are converted (``write_colmap_masks``)."""
+    from .ingest import VIDEO_SUFFIXES, list_images
+    from .io.images import MASK_HELP, image_size, match_masks
+
+    images, masks = Path(images), Path(masks)
+    if images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES:
+        if not masks.is_dir():
+            raise InputDataError(f"{masks}: no such mask folder ({MASK_HELP})")
+        return {}
+    paths, _ = list_images(images)
+    return match_masks(masks, {p.name: image_size(p) for p in paths})
+
+
+def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path) -> int:
+    """COLMAP's mask layout in ``dst``: ``NAME.EXT.png`` (uint8, 0 = no features there, 255 = use) for each of
+    ``images`` ((name, width, height) in ``images_dir``) that has a mask in the user's folder ``masks``
+    (NAME.EXT.png or NAME.png), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
+    from .io.images import mask_file, read_alpha, read_mask, write_image
+
+    n = 0
+    for name, w, h in images:
+        p = mask_file(masks, name) if masks else None
+        if p is not None:
+            m = read_mask(p, (w, h), f"image {name}")
+        else:
+            alpha = read_alpha(images_dir / name)
+            if alpha is None:
+                continue
+            if alpha.shape != (h, w):
+                raise InputDataError(f"{images_dir / name}: alpha is {alpha.shape[1]}x{alpha.shape[0]}, image is {w}x{h}")
+            m = alpha > 0
+        write_image(dst / f"{name}.png", np.where(m, 255, 0).astype(np.uint8))
+        n += 1
+    return n
+
+
+def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfig, mask_dir: Path | None = None) -> Path:
+    """SIFT features of the images in ``cameras`` (see ``camera_groups``) into a new COLMAP database; none
+    where a mask in ``mask_dir`` (COLMAP's layout, ``write_colmap_masks``) is 0."""
     pycolmap = _pycolmap()
     with atomic_path(database) as tmp:
         for cam in cameras:
             reader = pycolmap.ImageReaderOptions()
             reader.camera_model = cam["model"]
             reader.camera_params = cam["params"]
+            if mask_dir is not None:
+                reader.mask_path = str(mask_dir)
             ext = pycolmap.FeatureExtractionOptions()
             ext.max_image_size = cfg.max_image_size
             ext.sift.max_num_features = cfg.max_features
@@ -234,16 +279,49 @@ def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed
     return model_dir
 
 
-def undistort(model_dir: Path, images_dir: Path, out: Path) -> Path:
+def _undistort_masks(model_dir: Path, model: SparseModel, mask_dir: Path, out: Path) -> int:
+    """The COLMAP-layout masks of ``mask_dir`` (NAME.EXT.png) undistorted like their images onto the
+    undistorted cameras of ``model`` (OpenCV maps, COLMAP's distortion models): ``out/NAME.png`` (0/255;
+    outside the source image 0). Returns how many were written."""
+    import cv2
+
+    from .io.images import read_mask, write_image
+
+    distorted = {v.extra["image_file"]: v.intrinsics for v in read_colmap_binary(model_dir).views}
+    n = 0
+    for v in model.views:
+        name = v.extra["image_file"]
+        src = mask_dir / f"{name}.png"
+        if not src.is_file() or name not in distorted:
+            continue
+        d, u = distorted[name], v.intrinsics
+        m = np.where(read_mask(src, d.size, f"image {name}"), 255, 0).astype(np.uint8)
+        map_x, map_y = cv2.initUndistortRectifyMap(d.K, np.array([d.k1, d.k2, d.p1, d.p2]), None, u.K,
+                                                   u.size, cv2.CV_32FC1)
+        m = cv2.remap(m, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        write_image(out / f"{v.name}.png", np.where(m >= 128, 255, 0).astype(np.uint8))
+        n += 1
+    return n
+
+
+def undistort(model_dir: Path, images_dir: Path, out: Path, mask_dir: Path | None = None) -> Path:
     """Undistort the model's images to pinhole cameras: ``out/images``, ``out/sparse/0`` (COLMAP text) and
-    ``out/transforms.json``; returns ``out/sparse/0``."""
+    ``out/transforms.json``; and the masks of ``mask_dir`` (COLMAP's layout, NAME.EXT.png) into
+    ``out/masks/NAME.png`` (removed when there are none). Returns ``out/sparse/0``."""
     from .io.nerf import write_transforms
 
     pycolmap = _pycolmap()
     with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
         pycolmap.undistort_images(und, str(model_dir), str(images_dir))
         model = _to_sparse(pycolmap.Reconstruction(f"{und}/sparse"))
+        masks = Path(und) / "masks"
+        masks.mkdir()
+        n_masks = _undistort_masks(model_dir, model, mask_dir, masks) if mask_dir is not None else 0
         replace_dir(f"{und}/images", out / "images")
+        if n_masks:
+            replace_dir(masks, out / "masks")
+        else:
+            shutil.rmtree(out / "masks", ignore_errors=True)
     write_colmap_text(model, out / "sparse" / "0")
     write_transforms(model.views, out / "transforms.json", world="none")
     return out / "sparse" / "0"
@@ -262,17 +340,24 @@ def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
             "skipped": ing.skipped}
 
 
-def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False) -> SfMResult:
+def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False,
+            masks: str | Path | None = None) -> SfMResult:
     """Run SfM on ``images_dir`` (a folder or a video) into ``out`` (see the module docstring).
 
-    Each stage is reused from ``out/colmap`` while its inputs (file names, sizes and times) and settings are
-    unchanged, unless ``force``. Raises ``NoImagesError`` / ``SfMError`` with one clear line on failure."""
+    ``masks``: a folder of masks (NAME.png or NAME.EXT.png, 0 = ignore); they, or else the images' alpha
+    channels, go to feature extraction in COLMAP's layout (``out/colmap/masks/NAME.EXT.png``) and, undistorted,
+    to ``out/masks/NAME.png``. Each stage is reused from ``out/colmap`` while its inputs (file names, sizes and
+    times) and settings are unchanged, unless ``force``. Raises ``NoImagesError`` / ``SfMError`` with one
+    clear line on failure, ``InputDataError`` for a mask folder that does not fit the images."""
     from .ingest import IngestedImage
 
     pycolmap = _pycolmap()
     cfg = cfg or SfMConfig()
     _quiet(pycolmap)
     src, out = Path(images_dir), Path(out)
+    masks = Path(masks) if masks else None
+    if masks is not None:
+        check_sfm_masks(src, masks)
     work = out / "colmap"
     stages = Stages(work / ".stages", force)
 
@@ -288,8 +373,16 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     cameras = camera_groups(images, cfg)
     sift = {k: getattr(cfg, k) for k in ("max_image_size", "max_features", "affine_sift", "dsp_sift")}
     features = work / "features.db"
-    stages.run("extraction", {"cameras": cameras, "sift": sift},
-               lambda: extract(work / "images", features, cameras, cfg), outputs=[features])
+    work_masks = work / "masks"
+
+    def extraction() -> dict:
+        with atomic_dir(work_masks) as tmp:
+            n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp)
+        extract(work / "images", features, cameras, cfg, work_masks if n else None)
+        return {"masks": n}
+
+    ext = stages.run("extraction", {"cameras": cameras, "sift": sift, "masks": masks and fingerprint(masks)},
+                     extraction, outputs=[features, work_masks])
 
     matcher = choose_matcher(cfg, len(names))
     database = work / "database.db"
@@ -311,8 +404,9 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     if unreg:
         log.warning("%d of %d images not registered: %s", len(unreg), len(names), ", ".join(unreg))
 
-    stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out),
-               outputs=[out / "images", out / "sparse" / "0", out / "transforms.json"])
+    stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out,
+                                                     work_masks if ext.get("masks") else None),
+               outputs=[out / "images", out / "sparse" / "0", out / "transforms.json", out / "masks"])
     model = read_colmap_text(out / "sparse" / "0")
     secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,

@@ -1,5 +1,6 @@
 """The alpha channel of RGBA / grey + alpha images is a mask: Dataset.mask, fusion and reconstruct --poses."""
 import dataclasses
+import json
 import shutil
 import struct
 import zlib
@@ -134,3 +135,203 @@ def test_undistorted_mask_follows_the_image(rgba, tmp_path):
         orig = read_alpha(images / f"{v.name}.png") > 0
         assert (mask != img).mean() < 0.005  # mask and image undistorted alike
         assert (mask != orig).mean() > 0.01  # ... and really undistorted
+
+
+# --- --masks DIR: a user's mask folder for sfm, mvs, fuse and reconstruct (issue 12 item 2) -------------------
+def _backdrop_depth(view, radius=2.0):
+    """z-depth (H, W) of the far side of a sphere of ``radius`` around the origin: a backdrop shell behind
+    the object, seen by every pixel whose ray reaches it."""
+    from photorecon.cameras import invert_rigid
+
+    intr = view.intrinsics
+    rays = intr.pixel_rays(intr.pixel_grid().reshape(-1, 2))  # z = 1
+    world_from_cam = invert_rigid(view.cam_from_world)
+    norm = np.linalg.norm(rays, axis=1)
+    d = (rays @ world_from_cam[:3, :3].T) / norm[:, None]
+    o = world_from_cam[:3, 3]
+    b, c = d @ o, o @ o - radius ** 2
+    disc = b * b - c
+    s = np.where(disc > 0, -b + np.sqrt(np.maximum(disc, 0)), 0)
+    return (s / norm).reshape(intr.height, intr.width).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def backdrop(tmp_path_factory):
+    """A textured blob in front of a textured backdrop (12 views, 160x120), split the way a user has it:
+    ``data/`` (sparse/0, images/, depth/ that sees a backdrop shell wherever the object is not, no masks/)
+    and ``usermasks/`` (the object's masks; even views named COLMAP's way, NAME.EXT.png, odd ones NAME.png)."""
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    root = tmp_path_factory.mktemp("backdrop")
+    synthesize(SynthConfig(scene="blob", views=12, width=160, height=120, points=500, seed=4, background="texture"),
+               root / "synth", overwrite=True)
+    data, masks = root / "data", root / "usermasks"
+    shutil.copytree(root / "synth" / "sparse", data / "sparse")
+    shutil.copytree(root / "synth" / "images", data / "images")
+    (data / "depth").mkdir()
+    masks.mkdir()
+    for k, v in enumerate(Dataset.open(root / "synth").views):
+        obj = np.load(root / "synth" / "depth" / f"{v.name}.npy")
+        hit = obj > 0
+        assert hit.any() and not hit.all()
+        np.save(data / "depth" / f"{v.name}.npy", np.where(hit, obj, _backdrop_depth(v)).astype(np.float32))
+        name = f"{v.name}.png.png" if k % 2 == 0 else f"{v.name}.png"
+        shutil.copyfile(root / "synth" / "masks" / f"{v.name}.png", masks / name)
+    return root
+
+
+def test_user_mask_folder_reaches_the_dataset(backdrop):
+    ds = Dataset.open(backdrop / "data", masks_dir=backdrop / "usermasks")
+    plain = Dataset.open(backdrop / "data")
+    for v in ds.views:
+        truth = cv2.imread(str(backdrop / "synth" / "masks" / f"{v.name}.png"), cv2.IMREAD_GRAYSCALE) > 0
+        np.testing.assert_array_equal(ds.mask(v), truth)  # both namings found
+        assert plain.mask(v) is None  # no DATASET/masks, RGB images: no mask
+
+
+def test_fuse_with_masks_drops_the_backdrop(backdrop, tmp_path):
+    gt = trimesh.load(backdrop / "synth" / "gt_mesh.ply", process=False)
+    tol = 0.02 * np.linalg.norm(gt.bounds[1] - gt.bounds[0])
+    data, masks = backdrop / "data", backdrop / "usermasks"
+    assert main(["-q", "fuse", str(data), "-o", str(tmp_path / "masked"), "--masks", str(masks)]) == 0
+    masked = trimesh.load(tmp_path / "masked" / "mesh.ply", process=False)
+    assert len(masked.vertices) > 1000 and _inside(masked, gt.bounds, tol).all()
+    # the control: the same depth maps without --masks fuse the backdrop shell too
+    assert main(["-q", "fuse", str(data), "-o", str(tmp_path / "unmasked")]) == 0
+    unmasked = trimesh.load(tmp_path / "unmasked" / "mesh.ply", process=False)
+    assert (~_inside(unmasked, gt.bounds, tol)).sum() > 1000
+
+
+def test_reconstruct_carries_user_masks_and_reruns_when_they_change(backdrop, tmp_path):
+    data, out = backdrop / "data", tmp_path / "out"
+    masks = tmp_path / "usermasks"
+    shutil.copytree(backdrop / "usermasks", masks)
+    args = ["-q", "reconstruct", str(data / "images"), "-o", str(out), "--poses", str(data / "sparse" / "0"),
+            "--depth", str(data / "depth"), "--masks", str(masks)]
+    assert main(args) == 0
+    for v in Dataset.open(out).views:
+        truth = cv2.imread(str(backdrop / "synth" / "masks" / f"{v.name}.png"), cv2.IMREAD_GRAYSCALE) > 0
+        np.testing.assert_array_equal(cv2.imread(str(out / "masks" / f"{v.name}.png"), cv2.IMREAD_GRAYSCALE) > 0, truth)
+    gt = trimesh.load(backdrop / "synth" / "gt_mesh.ply", process=False)
+    mesh = trimesh.load(out / "mesh.ply", process=False)
+    assert _inside(mesh, gt.bounds, 0.02 * np.linalg.norm(gt.bounds[1] - gt.bounds[0])).all()
+
+    def stages():
+        rep = json.loads((out / "report.json").read_text())["stages"]
+        return {k: bool(s.get("cached")) for k, s in rep.items()}
+
+    assert main(args) == 0 and all(stages().values())  # unchanged: nothing reruns
+    first = sorted(masks.iterdir())[0]
+    m = cv2.imread(str(first), cv2.IMREAD_GRAYSCALE)
+    m[:, : m.shape[1] // 2] = 0
+    cv2.imwrite(str(first), m)
+    assert main(args) == 0
+    assert not any(stages().values())  # a changed mask reruns poses (the undistorted masks) and what follows
+    name = first.name.split(".")[0]
+    assert not (cv2.imread(str(out / "masks" / f"{name}.png"), cv2.IMREAD_GRAYSCALE)[:, : m.shape[1] // 2]).any()
+
+
+def test_sfm_masks_reach_feature_extraction(tmp_path):
+    """sfm --masks: COLMAP extracts no keypoint where the mask is 0, and OUT/masks holds the undistorted masks;
+    the control extraction without masks finds keypoints on the textured backdrop."""
+    import pycolmap
+
+    from photorecon.sfm import SfMConfig, extract
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=320, height=240, points=200, seed=5,
+                           background="texture"), tmp_path / "synth", overwrite=True)
+    images, masks = tmp_path / "synth" / "images", tmp_path / "usermasks"
+    masks.mkdir()
+    truth = {}
+    for k, p in enumerate(sorted((tmp_path / "synth" / "masks").glob("*.png"))):
+        truth[p.name] = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) > 0
+        shutil.copyfile(p, masks / (f"{p.name}.png" if k % 2 else p.name))
+    out = tmp_path / "out"
+    assert main(["-q", "sfm", str(images), "-o", str(out), "--masks", str(masks)]) == 0
+
+    def keypoints_outside(db_path):
+        db = pycolmap.Database.open(str(db_path))
+        try:
+            n = total = 0
+            for im in db.read_all_images():
+                xy = np.floor(db.read_keypoints(im.image_id)[:, :2]).astype(int)  # COLMAP: pixel corner at 0
+                m = truth[im.name]
+                n += int((~m[np.clip(xy[:, 1], 0, m.shape[0] - 1), np.clip(xy[:, 0], 0, m.shape[1] - 1)]).sum())
+                total += len(xy)
+            return n, total
+        finally:
+            db.close()
+
+    outside, total = keypoints_outside(out / "colmap" / "features.db")
+    assert total > 2000 and outside == 0
+    assert sorted(p.name for p in (out / "colmap" / "masks").iterdir()) == sorted(f"{n}.png" for n in truth)
+    # undistorted like the images: at the undistorted camera's size (COLMAP crops a pixel or so here), and,
+    # with near-zero distortion, the given masks cut where the principal point moved
+    from photorecon.io.dataset import read_model
+
+    distorted = {v.name: v.intrinsics for v in read_model(out / "colmap" / "sparse").views}
+    for v in read_model(out / "sparse" / "0").views:
+        und = cv2.imread(str(out / "masks" / f"{v.name}.png"), cv2.IMREAD_GRAYSCALE) > 0
+        assert und.shape == (v.intrinsics.height, v.intrinsics.width)
+        ox, oy = (round(a - b) for a, b in zip((distorted[v.name].cx, distorted[v.name].cy),
+                                                (v.intrinsics.cx, v.intrinsics.cy)))
+        m = truth[f"{v.name}.png"][oy:oy + und.shape[0], ox:ox + und.shape[1]]
+        assert (und != m).mean() < 0.01
+    cams = [{"model": "SIMPLE_RADIAL", "params": "", "images": sorted(truth)}]
+    extract(out / "colmap" / "images", tmp_path / "plain.db", cams, SfMConfig())
+    outside, total = keypoints_outside(tmp_path / "plain.db")
+    assert outside > 1000  # the backdrop is textured: without masks it has keypoints
+
+
+def test_bad_mask_folders_fail_before_writing(backdrop, tmp_path, capsys):
+    data = backdrop / "data"
+    wrong = tmp_path / "wrong"
+    shutil.copytree(backdrop / "usermasks", wrong)
+    bad = sorted(wrong.iterdir())[3]
+    cv2.imwrite(str(bad), np.full((60, 80), 255, np.uint8))
+    nomatch = tmp_path / "nomatch"
+    nomatch.mkdir()
+    cv2.imwrite(str(nomatch / "other.png"), np.full((120, 160), 255, np.uint8))
+    cases = [
+        (["fuse", str(data)], wrong, bad.name),
+        (["mvs", str(data)], wrong, bad.name),
+        (["reconstruct", str(data / "images"), "--poses", str(data / "sparse" / "0"), "--depth", str(data / "depth")],
+         wrong, bad.name),
+        (["sfm", str(data / "images")], wrong, bad.name),
+        (["fuse", str(data)], nomatch, "nomatch"),
+        (["sfm", str(data / "images")], nomatch, "nomatch"),
+        (["reconstruct", str(data / "images")], tmp_path / "missing", "missing"),
+    ]
+    for k, (cmd, masks, named) in enumerate(cases):
+        out = tmp_path / f"out{k}"
+        capsys.readouterr()
+        assert main(["-q", *cmd, "-o", str(out), "--masks", str(masks)]) == 3, cmd
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and named in err, err
+        assert masks != wrong or "80x60" in err, err  # says what was found
+        assert not out.exists(), cmd  # nothing written
+
+
+def test_alpha_reaches_colmap_masks(rgba, tmp_path):
+    """SfM's mask conversion: an image's alpha becomes COLMAP's NAME.EXT.png; a user's mask wins over it;
+    an image with neither gets none."""
+    from photorecon.sfm import write_colmap_masks
+
+    names = sorted(p.name for p in (rgba / "images").iterdir())[:3]
+    images = [(n, 160, 120) for n in names]
+    user = tmp_path / "user"
+    user.mkdir()
+    cv2.imwrite(str(user / names[1]), np.zeros((120, 160), np.uint8))  # NAME.png for image NAME.png
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    cv2.imwrite(str(plain / names[2]), cv2.imread(str(rgba / "images" / names[2]), cv2.IMREAD_COLOR))
+    dst = tmp_path / "colmap_masks"
+    dst.mkdir()
+    assert write_colmap_masks(images, rgba / "images", user, dst) == 3
+    np.testing.assert_array_equal(cv2.imread(str(dst / f"{names[0]}.png"), cv2.IMREAD_GRAYSCALE) > 0,
+                                  read_alpha(rgba / "images" / names[0]) > 0)
+    assert not cv2.imread(str(dst / f"{names[1]}.png"), cv2.IMREAD_GRAYSCALE).any()
+    dst2 = tmp_path / "none"
+    dst2.mkdir()
+    assert write_colmap_masks([(names[2], 160, 120)], plain, None, dst2) == 0 and not any(dst2.iterdir())

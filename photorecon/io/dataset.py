@@ -14,7 +14,7 @@ import numpy as np
 from ..cameras import View
 from ..errors import InputDataError
 from .colmap_text import SparseModel, read_colmap_text
-from .images import read_alpha, read_depth, read_image
+from .images import mask_file, match_masks, read_alpha, read_depth, read_image, read_mask
 from .formats import NEUS_FILES, read_llff, read_neus
 from .nerf import BLENDER_SPLITS, read_blender, read_transforms
 from .strecha import read_strecha
@@ -72,16 +72,28 @@ class Dataset:
     root: Path
     model: SparseModel
     depth_dir: Path
+    masks_dir: Path | None = None  # None: DATASET/masks (and the frames' mask_path)
+
+    def __post_init__(self):
+        if self.masks_dir is None:
+            self.masks_dir = self.root / "masks"
 
     @classmethod
-    def open(cls, root: str | Path, depth_dir: str | Path | None = None) -> "Dataset":
+    def open(cls, root: str | Path, depth_dir: str | Path | None = None,
+             masks_dir: str | Path | None = None) -> "Dataset":
+        """``masks_dir``: a folder of masks (NAME.png or NAME.EXT.png, 0 = ignore) instead of DATASET/masks;
+        checked here (it exists, some mask matches a view, each matching one has its camera's size), so a
+        bad folder fails before anything is written."""
         root = Path(root)
         if not root.is_dir():
             raise InputDataError(f"{root}: no such dataset folder")
         model = read_model(root)
         if not model.views:
             raise InputDataError(f"{root}: the camera model has no images")
-        return cls(root, model, Path(depth_dir) if depth_dir else root / "depth")
+        ds = cls(root, model, Path(depth_dir) if depth_dir else root / "depth", Path(masks_dir) if masks_dir else None)
+        if masks_dir:
+            match_masks(masks_dir, {ds._image_name(v): v.intrinsics.size for v in ds.views})
+        return ds
 
     @property
     def views(self) -> list[View]:
@@ -135,24 +147,36 @@ class Dataset:
         p = self.depth_dir / f"{view.name}.conf.npy"
         return np.load(p).astype(np.float32) if p.is_file() else None
 
+    def _image_name(self, view: View) -> str:
+        """The view's image file name (NAME.EXT), what a COLMAP-style mask NAME.EXT.png is named after."""
+        return Path(view.image_path).name if view.image_path else Path(view.extra.get("image_file", view.name)).name
+
+    def mask_path(self, view: View) -> Path | None:
+        """The mask file of ``view``: in the masks folder NAME.EXT.png or NAME.png; with the default folder,
+        a transforms.json frame's ``mask_path`` comes first. None when there is none."""
+        default = self.masks_dir == self.root / "masks"
+        if default and "mask_path" in view.extra and Path(view.extra["mask_path"]).is_file():
+            return Path(view.extra["mask_path"])
+        p = mask_file(self.masks_dir, self._image_name(view))
+        if p is None and (self.masks_dir / f"{view.name}.png").is_file():  # a view named apart from its file
+            p = self.masks_dir / f"{view.name}.png"
+        return p
+
     def mask(self, view: View) -> np.ndarray | None:
-        """Boolean (H, W) foreground of ``view`` (True = use the pixel), or None when it has no mask:
-        MASKS/NAME.png (or the frame's ``mask_path``) > 0 when present, else the alpha channel > 0 of its
-        image when that is RGBA or grey + alpha."""
-        p = Path(view.extra["mask_path"]) if "mask_path" in view.extra else self.root / "masks" / f"{view.name}.png"
-        what = "mask"
-        if p.is_file():
-            m = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-            if m is None:
-                raise InputDataError(f"view {view.name}: mask {p} cannot be read")
-        else:
-            p = self.image_path(view)
-            if not p.is_file():
-                return None
-            m, what = read_alpha(p), "alpha of image"
-            if m is None:
-                return None
-        if m.shape != (view.intrinsics.height, view.intrinsics.width):
-            raise InputDataError(f"view {view.name}: {what} {p} is {m.shape[1]}x{m.shape[0]}, camera is "
-                                 f"{view.intrinsics.width}x{view.intrinsics.height}")
+        """Boolean (H, W) foreground of ``view`` (True = use the pixel), or None when it has no mask: its
+        mask file (``mask_path``) > 0 when present, else the alpha channel > 0 of its image when that is
+        RGBA or grey + alpha."""
+        size = view.intrinsics.size
+        p = self.mask_path(view)
+        if p is not None:
+            return read_mask(p, size, f"the camera of view {view.name}")
+        p = self.image_path(view)
+        if not p.is_file():
+            return None
+        m = read_alpha(p)
+        if m is None:
+            return None
+        if (m.shape[1], m.shape[0]) != tuple(size):
+            raise InputDataError(f"view {view.name}: alpha of image {p} is {m.shape[1]}x{m.shape[0]}, camera is "
+                                 f"{size[0]}x{size[1]}")
         return m > 0

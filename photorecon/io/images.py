@@ -66,6 +66,79 @@ def read_alpha(path: str | Path) -> np.ndarray | None:
     return None
 
 
+MASK_HELP = "masks are NAME.png or NAME.EXT.png (COLMAP's naming, e.g. IMG_1.jpg.png), 0 = ignore the pixel"
+
+
+def mask_file(folder: str | Path, image_name: str) -> Path | None:
+    """The mask of image ``image_name`` in ``folder``: ``NAME.EXT.png`` (COLMAP's naming, checked first) or
+    ``NAME.png`` (the image's stem), or None when neither exists."""
+    folder, name = Path(folder), Path(image_name).name
+    for cand in (folder / f"{name}.png", folder / f"{Path(name).stem}.png"):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) of an image file as ``read_image`` returns it (EXIF orientation applied), from its
+    header where the format allows (PIL), without decoding pixels."""
+    path = Path(path)
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            w, h = im.size
+            try:
+                orientation = int(im.getexif().get(0x0112, 1) or 1)
+            except Exception:  # unparsable EXIF: as stored
+                orientation = 1
+        return (h, w) if orientation in (5, 6, 7, 8) else (w, h)
+    except Exception:  # not a format PIL reads: decode it
+        img = read_image(path)
+        return img.shape[1], img.shape[0]
+
+
+def read_mask(path: str | Path, size: tuple[int, int] | None = None, what: str = "") -> np.ndarray:
+    """A mask image as boolean (H, W), True where the pixel is used (value > 0; colour masks: any channel).
+    ``size``: the (width, height) the mask must have (its image's). Raises ``InputDataError`` naming the
+    file when it cannot be read or has another size; ``what`` names its image in that message."""
+    path = Path(path)
+    m = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if m is None:
+        raise InputDataError(f"{path}: cannot read the mask (missing, corrupt or not an image); {MASK_HELP}")
+    if m.ndim == 3:
+        m = m[:, :, :3].max(axis=2) if m.shape[2] >= 3 else m[:, :, 0]
+    if size is not None and (m.shape[1], m.shape[0]) != tuple(size):
+        raise InputDataError(f"{path}: mask is {m.shape[1]}x{m.shape[0]} but {what or 'its image'} is "
+                             f"{size[0]}x{size[1]}; give masks at the size of their images")
+    return m > 0
+
+
+def match_masks(folder: str | Path, images: dict[str, tuple[int, int] | None]) -> dict[str, Path]:
+    """Check a user's mask folder against ``images`` (file name -> (width, height), or None to skip the size
+    check) before anything is written: ``{image name: mask file}`` for the images that have a mask.
+
+    Raises ``InputDataError`` naming the folder when it is missing or no mask matches an image name, and
+    naming the mask when it has another size than its image (read from the headers, no pixels decoded)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputDataError(f"{folder}: no such mask folder ({MASK_HELP})")
+    found = {name: p for name in images if (p := mask_file(folder, name)) is not None}
+    if not found:
+        n = next(iter(images), "IMG_1.jpg")
+        raise InputDataError(f"{folder}: no mask is named after an image (for {n}: {n}.png or {Path(n).stem}.png); "
+                             f"{MASK_HELP}")
+    for name, p in found.items():
+        want = images[name]
+        if want is None:
+            continue
+        got = image_size(p)
+        if got != tuple(want):
+            raise InputDataError(f"{p}: mask is {got[0]}x{got[1]} but image {name} is {want[0]}x{want[1]}; "
+                                 "give masks at the size of their images")
+    return found
+
+
 def write_image(path: str | Path, img: np.ndarray) -> Path:
     """Write an RGB (H, W, 3) or grey (H, W) uint8 image atomically (format from the suffix)."""
     path = Path(path)
