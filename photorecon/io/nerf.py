@@ -43,8 +43,9 @@ def _intr_dict(intr: Intrinsics) -> dict:
 
 def write_transforms(views: list[View], path: str | Path, world: str = "none", image_dir: str = "images",
                      image_ext: str = ".png", depth_dir: str | None = None, mask_dir: str | None = None,
-                     extra: dict | None = None) -> Path:
-    """Write ``views`` to ``path``; ``image_dir``/``depth_dir``/``mask_dir`` are relative to its folder."""
+                     extra: dict | None = None, units: str | None = None) -> Path:
+    """Write ``views`` to ``path``; ``image_dir``/``depth_dir``/``mask_dir`` are relative to its folder.
+    ``units``: "metre" or "arbitrary", recorded as the file's ``units`` key (omitted when None)."""
     path = Path(path)
     world_T = NERF_WORLDS.get(world)
     if world_T is None:
@@ -54,6 +55,10 @@ def write_transforms(views: list[View], path: str | Path, world: str = "none", i
     if shared and views:
         out.update(_intr_dict(views[0].intrinsics))
     out["photorecon_world"] = world
+    if units is not None:
+        if units not in ("metre", "arbitrary"):
+            raise InputDataError(f"transforms.json units: expected 'metre' or 'arbitrary', got {units!r}")
+        out["units"] = units
     if world == "nerfstudio":
         out["applied_transform"] = world_T[:3].tolist()
     frames = []
