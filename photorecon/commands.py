@@ -209,6 +209,7 @@ def _print_report(report: dict) -> None:
 
 @command
 def sfm(sub):
+    from .scale import ScaleConfig
     from .sfm import SfMConfig
 
     p = sub.add_parser("sfm", help="camera poses for an image folder (COLMAP SfM via pycolmap)",
@@ -219,21 +220,28 @@ def sfm(sub):
     p.add_argument("--force", action="store_true", help="recompute every stage instead of reusing cached ones")
     _masks_arg(p, "no features there (the images' alpha channel counts too); undistorted into OUT/masks")
     add_config_arguments(p, SfMConfig)
+    add_config_arguments(p.add_argument_group("metric scale"), ScaleConfig)
     p.set_defaults(func=_run_sfm)
 
 
 def _run_sfm(args):
+    from pathlib import Path
+
     from .io.output import prepare_output
+    from .scale import ScaleConfig, scale_output
     from .sfm import SfMConfig, check_sfm_masks, run_sfm
 
     cfg = config_from_args(SfMConfig, args)
+    scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
     if args.masks:
         check_sfm_masks(args.images, args.masks)  # before anything is written
     out = prepare_output(args.out, args.overwrite, inputs=(args.images,) + ((args.masks,) if args.masks else ()))
     res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
+    units = scale_output(out, args.images if Path(args.images).is_dir() else None, scale_cfg)["units"]
     n = len(res.registered) + len(res.unregistered)
     print(f"sfm: {len(res.registered)} of {n} images registered, {len(res.model.points)} sparse points -> "
-          f"{out}/sparse/0, {out}/transforms.json" + (f" (reused: {', '.join(res.cached)})" if res.cached else ""))
+          f"{out}/sparse/0, {out}/transforms.json (units: {units})"
+          + (f" (reused: {', '.join(res.cached)})" if res.cached else ""))
     return 0
 
 
@@ -305,7 +313,7 @@ def _add_stage_args(p):
 
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
-                       ("fusion", d.fusion), ("cleaning", d.clean)):
+                       ("fusion", d.fusion), ("cleaning", d.clean), ("metric scale", d.scale)):
         add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg)
 
 
@@ -327,11 +335,12 @@ def _run_reconstruct(args):
     from .fusion import FusionConfig
     from .mesh import CleanConfig
     from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
+    from .scale import ScaleConfig
     from .sfm import SfMConfig
 
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
                         config_from_args(MVSConfig, args), config_from_args(FusionConfig, args),
-                        config_from_args(CleanConfig, args))
+                        config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args))
     rep = run(args.images, args.out, cfgs, force=args.force, overwrite=args.overwrite)
     p, d, m = rep["poses"], rep["depth"], rep["mesh"]
     print(f"reconstruct: {p.get('registered')} images registered, {d.get('views')} depth maps ({d.get('source')}), "

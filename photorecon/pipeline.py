@@ -40,6 +40,7 @@ from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesErro
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json, atomic_write_text
 from .mesh import CleanConfig
+from .scale import ScaleConfig
 from .sfm import SfMConfig
 from .stages import Stages, atomic_dir, fingerprint
 
@@ -66,6 +67,7 @@ class StageConfigs:
     # MVS and monocular depth are noisier than rendered depth: a wider truncation band than FusionConfig's
     fusion: FusionConfig = field(default_factory=lambda: FusionConfig(trunc_voxels=3.0))
     clean: CleanConfig = field(default_factory=CleanConfig)
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
 
 
 def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
@@ -130,6 +132,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     from .ingest import VIDEO_SUFFIXES
     from .mesh import clean, export, load, parse_formats
     from .preview import render_preview
+    from .scale import given_units, scale_output
     from .sfm import run_sfm
 
     cfgs = cfgs or StageConfigs()
@@ -169,6 +172,8 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 res = run_sfm(images, out, cfgs.sfm, force=force, masks=masks)
                 info = {"source": "sfm", "registered": len(res.registered), "unregistered": res.unregistered,
                         "sfm_seconds": res.seconds}
+            # metric scale (markers or EXIF GPS): rewrites OUT/sparse/0 and OUT/transforms.json, records units
+            info["scale"] = scale_output(out, None if is_video else images, cfgs.scale, given_units(run.poses))
             log.info("poses: %d images registered", info["registered"])
             return info
 
@@ -176,7 +181,8 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                                              cfgs.sfm.intrinsics and fingerprint(cfgs.sfm.intrinsics)}
         # a changed mask folder reruns poses (SfM features, or the undistorted masks) and all that follows
         stages.run("poses", {"images": fingerprint(images), "poses": run.poses and fingerprint(run.poses),
-                             "sfm": sfm_inputs, "masks": masks and fingerprint(masks)},
+                             "sfm": sfm_inputs, "masks": masks and fingerprint(masks),
+                             "scale": asdict(cfgs.scale)},
                    poses, outputs=[out / "images", out / "sparse" / "0", out / "transforms.json", out / "masks"])
         ds = Dataset.open(out)
 
@@ -195,7 +201,9 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"]}
                 else:
-                    n = _copy_depth(Path(run.depth), ds, tmp_depth)
+                    # depth maps in the given cameras' units scale with them (--marker-size, GPS)
+                    factor = stages.info["poses"].get("scale", {}).get("factor", 1.0) if run.poses else 1.0
+                    n = _copy_depth(Path(run.depth), ds, tmp_depth, factor)
                     info = {"source": str(run.depth), "views": n}
             log.info("depth: %d depth maps (%s)", info["views"], info["source"])
             return info
@@ -235,6 +243,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         "parameters": {k: asdict(v) for k, v in asdict_shallow(cfgs).items()},
         "stages": stages.stats, "poses": stages.info.get("poses", {}), "depth": stages.info.get("depth", {}),
         "mesh": stages.info.get("fusion", {}), "warnings": warnings,
+        "units": stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"),
     }
     atomic_write_json(out / "report.json", report)
     write_html_report(out, report)
@@ -242,7 +251,8 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
 
 def asdict_shallow(cfgs: StageConfigs) -> dict:
-    return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean}
+    return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean,
+            "scale": cfgs.scale}
 
 
 class _WarningCollector(logging.Handler):
@@ -254,8 +264,9 @@ class _WarningCollector(logging.Handler):
         self.sink.append(record.getMessage())
 
 
-def _copy_depth(src: Path, ds, dst: Path) -> int:
-    """Copy NAME.npy depth maps (and confidences, previews) for the dataset's views; validate each."""
+def _copy_depth(src: Path, ds, dst: Path, factor: float = 1.0) -> int:
+    """Copy NAME.npy depth maps (and confidences, previews) for the dataset's views; validate each.
+    ``factor``: multiplies the depths (the metric scale applied to the given cameras)."""
     from .io.images import read_depth
 
     dst.mkdir(parents=True, exist_ok=True)
@@ -265,8 +276,11 @@ def _copy_depth(src: Path, ds, dst: Path) -> int:
         if not p.is_file():
             log.warning("view %s: no depth map %s; skipped", v.name, p)
             continue
-        read_depth(p, (v.intrinsics.height, v.intrinsics.width), v.name)
-        shutil.copyfile(p, dst / p.name)
+        d = read_depth(p, (v.intrinsics.height, v.intrinsics.width), v.name)
+        if factor != 1.0:
+            np.save(dst / p.name, (d * factor).astype(np.float32))
+        else:
+            shutil.copyfile(p, dst / p.name)
         for extra in (f"{v.name}.conf.npy", f"{v.name}.png"):
             if (src / extra).is_file():
                 shutil.copyfile(src / extra, dst / extra)

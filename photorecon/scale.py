@@ -380,7 +380,8 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
 
     ``photos``: the input photo folder (for EXIF GPS; None for a video). Markers are looked for in
     ``OUT/images`` (undistorted). Rewrites the model and transforms.json when a scale applies, and always
-    records the units in transforms.json. Returns {"units": ..., "method": ..., "marker"/"gps": ...}; a marker
+    records the units in transforms.json. Returns {"units": ..., "method": ..., "factor": the scale applied,
+    "marker"/"gps": what was measured}; a marker
     or GPS that cannot be used logs a warning and leaves the units at ``base_units``."""
     from .io.colmap_text import read_colmap_text, write_colmap_text
 
@@ -391,7 +392,7 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
     if not (out / "sparse" / "0").is_dir():
         raise InputDataError(f"{out}/sparse/0: no model to scale")
     model = read_colmap_text(out / "sparse" / "0")
-    info: dict = {"units": base_units, "method": "given" if base_units == "metre" else None}
+    info: dict = {"units": base_units, "method": "given" if base_units == "metre" else None, "factor": 1.0}
     scaled = None
     if cfg.marker_size is not None:
         res = marker_scale(model, {v.name: out / "images" / v.extra.get("image_file", v.name + ".png")
@@ -404,15 +405,15 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
                 log.warning("metric scale: marker edges disagree by %.1f%% (std/mean); is a marker bent or "
                             "is --marker-size wrong?", 100 * res.spread)
             scaled = apply_similarity(model, res.scale)
-            info.update(units="metre", method="markers")
+            info.update(units="metre", method="markers", factor=res.scale)
             log.info("metric scale: %d markers, scale %.6g, edge spread %.2f%%", res.markers, res.scale,
                      100 * res.spread)
-    elif cfg.gps:
+    elif cfg.gps and base_units != "metre":  # metric cameras given: their frame is kept
         sim = gps_alignment(model, _source_photos(model, Path(photos) if photos else None))
         if sim is not None:
             info["gps"] = sim.as_dict()
             scaled = apply_similarity(model, sim.s, sim.R, sim.t)
-            info.update(units="metre", method="gps")
+            info.update(units="metre", method="gps", factor=sim.s)
             log.info("metric scale: aligned to east-north-up metres with %d GPS photos (RMS %.2f m)",
                      sim.photos, sim.rms_m)
     if scaled is not None:
