@@ -366,7 +366,8 @@ def _source_photos(model: SparseModel, folder: Path | None) -> list[Path | None]
         return [None] * len(model.views)
     by_stem: dict[str, Path] = {}
     for f in sorted(folder.iterdir()):
-        by_stem.setdefault(f.stem, f)
+        if f.is_file():
+            by_stem.setdefault(f.stem, f)
     out = []
     for v in model.views:
         name = v.extra.get("image_file", v.name)

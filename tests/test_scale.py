@@ -229,6 +229,15 @@ def test_gps_alignment_recovers_enu_positions(tmp_path):
     aligned = apply_similarity(model, sim.s, sim.R, sim.t)
     err = np.linalg.norm(np.array([v.center for v in aligned.views]) - enu, axis=1)
     assert err.max() < 0.03, err  # a few cm
+    # through the poses hook: the photos found by name in the input folder, the model rewritten in ENU metres
+    out = tmp_path / "out"
+    write_colmap_text(model, out / "sparse" / "0")
+    info = scale_output(out, tmp_path, ScaleConfig())
+    assert info["units"] == "metre" and info["method"] == "gps" and abs(info["factor"] - 20.0) < 0.01
+    enu_out = np.array([v.center for v in read_colmap_text(out / "sparse" / "0").views])
+    assert np.abs(enu_out - enu).max() < 0.03
+    assert json.loads((out / "transforms.json").read_text())["units"] == "metre"
+    assert scale_output(out, tmp_path, ScaleConfig(gps=False))["units"] == "arbitrary"
     # fewer than 3 photos with GPS: a warning, no alignment
     for p in paths[2:]:
         Image.new("RGB", (32, 24)).save(p, "JPEG")
