@@ -304,12 +304,12 @@ def _undistort_masks(model_dir: Path, model: SparseModel, mask_dir: Path, out: P
     return n
 
 
-def undistort(model_dir: Path, images_dir: Path, out: Path, mask_dir: Path | None = None) -> Path:
-    """Undistort the model's images to pinhole cameras: ``out/images``, ``out/sparse/0`` (COLMAP text) and
-    ``out/transforms.json``; and the masks of ``mask_dir`` (COLMAP's layout, NAME.EXT.png) into
-    ``out/masks/NAME.png`` (removed when there are none). Returns ``out/sparse/0``."""
-    from .io.nerf import write_transforms
-
+def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mask_dir: Path | None = None) -> Path:
+    """Undistort the model's images to pinhole cameras: ``out/images`` and the pinhole model (COLMAP text) in
+    ``model_out``; and the masks of ``mask_dir`` (COLMAP's layout, NAME.EXT.png) into ``out/masks/NAME.png``
+    (removed when there are none). Returns ``model_out``. ``publish`` then copies the model to
+    ``out/sparse/0`` and ``out/transforms.json``, where metric scaling may rewrite it: the stage's own copy
+    stays unscaled, so scaling never compounds and never invalidates this stage."""
     pycolmap = _pycolmap()
     with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
         pycolmap.undistort_images(und, str(model_dir), str(images_dir))
@@ -322,9 +322,20 @@ def undistort(model_dir: Path, images_dir: Path, out: Path, mask_dir: Path | Non
             replace_dir(masks, out / "masks")
         else:
             shutil.rmtree(out / "masks", ignore_errors=True)
-    write_colmap_text(model, out / "sparse" / "0")
+    with atomic_dir(model_out) as tmp:
+        write_colmap_text(model, tmp)
+    return model_out
+
+
+def publish(model_dir: Path, out: Path) -> SparseModel:
+    """The undistorted model of ``model_dir`` (COLMAP text) as ``out/sparse/0`` and ``out/transforms.json``."""
+    from .io.nerf import write_transforms
+
+    model = read_colmap_text(model_dir)
+    with atomic_dir(out / "sparse" / "0") as tmp:
+        write_colmap_text(model, tmp)
     write_transforms(model.views, out / "transforms.json", world="none")
-    return out / "sparse" / "0"
+    return model
 
 
 def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
@@ -404,10 +415,11 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     if unreg:
         log.warning("%d of %d images not registered: %s", len(unreg), len(names), ", ".join(unreg))
 
-    stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out,
+    undistorted = work / "undistorted"
+    stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out, undistorted,
                                                      work_masks if ext.get("masks") else None),
-               outputs=[out / "images", out / "sparse" / "0", out / "transforms.json", out / "masks"])
-    model = read_colmap_text(out / "sparse" / "0")
+               outputs=[out / "images", undistorted, out / "masks"])
+    model = publish(undistorted, out)
     secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,
                                                  "skipped_files": ing["skipped"], "matcher": matcher,
