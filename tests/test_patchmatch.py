@@ -28,6 +28,13 @@ def test_ncc_kernel_matches_slow_reference():
             got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
             want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1)
             assert abs(got - want) < tol, (x, y, got, want)
+    # at the reference's corners the window's offsets are clamped, yet the source samples must still be
+    # clamped to the source image: a centre next to the source's edge reads no pixel beyond it
+    for x, y, tx, ty in ((0, 0, 47.5, 2.0), (0, 0, 3.0, 36.5), (49, 39, -47.0, -36.0), (0, 39, 47.2, -3.0)):
+        Hm = np.array([[1.0, 0, tx], [0, 1.0, ty], [0, 0, 1.0]])
+        got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
+        want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1)
+        assert abs(got - want) < 1e-5, (x, y, got, want)
     # identical windows cost 0; a window outside the source costs the maximum, 2
     assert K.ncc_at(ref, ref, 20, 20, np.eye(3).ravel(), sdy, sdx, sspat, 0.1, 1e-5) < 1e-6
     far = np.array([[1.0, 0, 500], [0, 1, 0], [0, 0, 1]])

@@ -83,17 +83,20 @@ def _seed(seed, it, y, x):
 @njit(cache=True, fastmath=True)
 def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
     """Fill the reference window's values ``rv``, bilateral weights ``wk`` and sample offsets ``du, dv``
-    (clamped to the image); returns (sum w, mean, var)."""
+    (clamped to the image); returns (sum w, mean, var, radius): the radius is the largest |offset| over all
+    samples (not the first sample's: offsets are clamped at the image border), for ``_ncc``'s bounds shortcut."""
     H, W = ref.shape
     c = ref[y, x]
     sw = 0.0
     s1 = 0.0
     s2 = 0.0
+    rad = 0.0
     for k in range(sdy.shape[0]):
         v = min(max(y + sdy[k], 0), H - 1)
         u = min(max(x + sdx[k], 0), W - 1)
         du[k] = u - x
         dv[k] = v - y
+        rad = max(rad, abs(du[k]), abs(dv[k]))
         val = ref[v, u]
         dc = val - c
         w = sspat[k] * math.exp(-dc * dc * inv2sc2)
@@ -106,13 +109,13 @@ def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
     vr = s2 / sw - mr * mr
     if vr < min_var:
         vr = min_var
-    return sw, mr, vr
+    return sw, mr, vr, rad
 
 
 @njit(cache=True, fastmath=True)
-def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, h, min_var):
+def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var):
     """1 - bilaterally weighted NCC between the reference window at (x, y) (offsets ``du, dv``, values ``rv``,
-    weights ``wk`` summing to ``sw``, weighted mean ``mr`` and variance ``vr``) and ``img`` sampled through the
+    weights ``wk`` summing to ``sw``, weighted mean ``mr`` and variance ``vr``, largest |offset| ``rad``) and ``img`` sampled through the
     homography ``h`` (9 values, row-major), linearised at the window's centre (an affine map: over an
     11-pixel window the perspective term is far below a hundredth of a pixel); 2 when the centre falls
     outside the source image or behind it."""
@@ -136,7 +139,6 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, h, min_var):
     s2 = 0.0
     s12 = 0.0
     # the window's footprint in the source: when it lies inside the image, no sample needs clamping
-    rad = max(abs(du[0]), abs(dv[0]))
     ex = (abs(j00) + abs(j01)) * rad
     ey = (abs(j10) + abs(j11)) * rad
     inside = cx - ex >= 0.0 and cx + ex <= xmax and cy - ey >= 0.0 and cy + ey <= ymax
@@ -332,10 +334,10 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
             if d <= 0 or not _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
                 cost[y, x] = 2.0 + lam_geo * delta_geo
                 continue
-            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             for j in range(S):
                 _homography(A, b, j, m, h)
-                c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
+                c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
                 if use_geo:
                     c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
                 cj[j] = c
@@ -389,7 +391,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
-            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             # 1. candidates
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
@@ -442,7 +444,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                         cm[i, j] = 2.0 + lam_geo * delta_geo
                         continue
                     _homography(A, b, j, m, h)
-                    c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
+                    c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
                     if use_geo:
                         c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
                     cm[i, j] = c
@@ -530,7 +532,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                         if wv[j] <= 0:
                             continue
                         _homography(A, b, j, m, h)
-                        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
+                        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
                         if use_geo:
                             c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
                         acc += wv[j] * c
@@ -571,10 +573,10 @@ def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, d
                 for j in range(S):
                     out[j, y, x] = 2.0
                 continue
-            sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             for j in range(S):
                 _homography(A, b, j, m, h)
-                out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
+                out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
 
 
 @njit(cache=True)
@@ -586,5 +588,5 @@ def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
     wk = np.empty(ns, np.float64)
     du = np.empty(ns, np.float64)
     dv = np.empty(ns, np.float64)
-    sw, mr, vr = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
-    return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, h, min_var)
+    sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
+    return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
