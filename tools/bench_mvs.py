@@ -7,8 +7,9 @@
    surviving depths within 1% of the truth and coverage of the true surface pixels; PatchMatch and sweep.
 3. what the multi-scale geometric consistency buys (ACMM): the room with PatchMatch at one level without
    the geometric term, and with it.
+4. memory (only when asked: --only memory): peak of 50 views at 1600x1067, 8 sources each.
 
-    python tools/bench_mvs.py [--json out.json] [--only speed,accuracy,ablation]
+    python tools/bench_mvs.py [--json out.json] [--only speed,accuracy,ablation,memory]
 """
 from __future__ import annotations
 
@@ -75,6 +76,21 @@ def speed(tmp: Path) -> list[dict]:
     return rows
 
 
+def memory(tmp: Path) -> list[dict]:
+    """Peak memory of run_mvs on 50 views of 1600x1067 (8 sources each). What is held (images, depth maps,
+    normals, costs of every view) does not depend on the iterations, so they are cut to one per round to
+    keep the run short; the seconds of this row are therefore not the defaults' speed."""
+    root = tmp / "memory50"
+    synthesize(SynthConfig(scene="blob", rig="sphere", views=50, width=1600, height=1067, points=6000), root,
+               overwrite=True)
+    ds = Dataset.open(root)
+    cfg = MVSConfig(pm_iterations=1, pm_fine_iterations=1, pm_final_iterations=1)
+    r = run(ds, root, tmp / "memory50_out", cfg)
+    row = {"section": "memory, 50 views 1600x1067, 8 sources (1 iteration per round)", "method": "patchmatch", **r}
+    print(json.dumps(row), flush=True)
+    return [row]
+
+
 def accuracy(tmp: Path) -> list[dict]:
     rows = []
     for scene in ("room", "knot"):
@@ -115,7 +131,7 @@ def main() -> int:
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as t:
         for part in args.only.split(","):
-            rows += {"speed": speed, "accuracy": accuracy, "ablation": ablation}[part](Path(t))
+            rows += {"speed": speed, "accuracy": accuracy, "ablation": ablation, "memory": memory}[part](Path(t))
             if args.json:
                 Path(args.json).write_text(json.dumps({"warm_up_s": warm, "defaults": asdict(MVSConfig()), "rows": rows}, indent=1))
     print("\n| section | scene | method | s/view | within 1% | coverage | peak MB |\n|---|---|---|---|---|---|---|")

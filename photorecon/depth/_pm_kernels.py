@@ -352,7 +352,7 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
 @njit(parallel=True, cache=True, fastmath=True)
 def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
-            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, refine, same_depth, same_cos, depth, normal, cost):
+            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, depth, normal, cost):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
 
     1. candidates: the current hypothesis and, from each of the 8 regions around it (other colour), the
@@ -363,7 +363,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
        candidates (without any selected source: the two sources that match best);
     3. the candidate with the lowest weighted cost (photometric + ``lam_geo`` x geometric when ``use_geo``)
        becomes the pixel's hypothesis;
-    4. refinement (``refine``): perturbed and random depths and normals, with the same view weights.
+    4. refinement: ``n_refine`` hypotheses, with the same view weights: 3 = perturbed depth, normal and both
+       (for an upsampled, already converged surface), 6 = those and random depth, normal and both (0 = none).
 
     Candidates within ``same_depth`` (relative) and whose normals' cosine exceeds ``same_cos`` of an earlier
     candidate share its costs (neighbours of a converged surface propagate nearly the same plane).
@@ -498,7 +499,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
             if not ok[bi]:
                 continue
             # 5. refinement
-            if refine:
+            if n_refine > 0:
                 s = _seed(seed, it * 2 + color, y, x)
                 s, u = _rand(s)
                 dr = 1.0 / (1.0 / dmax + u * (1.0 / dmin - 1.0 / dmax))
@@ -510,7 +511,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                 s, u3 = _rand(s)
                 np0, np1, np2 = _facing(n0 + pert * 4.0 * (2.0 * u1 - 1.0), n1 + pert * 4.0 * (2.0 * u2 - 1.0),
                                         n2 + pert * 4.0 * (2.0 * u3 - 1.0), r0, r1, r2)
-                for q in range(N_REFINE):
+                for q in range(min(n_refine, N_REFINE)):
                     if q == 0:
                         d, a0, a1, a2 = dp, n0, n1, n2
                     elif q == 1:

@@ -58,7 +58,9 @@ class MVSConfig:
     pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius in pixels"})
     pm_stride: int = field(default=2, metadata={"help": "patchmatch: NCC window sampled every this many pixels"})
     pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: bilateral NCC weight's grey-level sigma (grey in 0..1)"})
-    pm_fine_sources: int = field(default=0, metadata={"help": "patchmatch: after the coarsest level, match only the best this many of the source views (0 = all)"})
+    pm_fine_sources: int = field(default=4, metadata={"help": "patchmatch: after the coarsest level, match only the best this many of the source views (0 = all; measured at 1600x1067: 4 of 8 is 1.6x faster, same accuracy)"})
+    pm_fine_refine: int = field(default=3, metadata={"help": "patchmatch: refinement hypotheses per pixel after the coarsest level (3: perturbed depth, normal, both; 6: also random ones)"})
+    pm_reuse_cost: bool = field(default=True, metadata={"help": "patchmatch: finer levels start from the coarser level's costs (upsampled) instead of recomputing them"})
     pm_same_depth: float = field(default=1e-3, metadata={"help": "patchmatch: candidates this close in relative depth (and --pm-same-normal-deg in normal) share one cost evaluation"})
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees"})
     geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
@@ -84,7 +86,7 @@ class DepthResult:
     confidence: np.ndarray  # (h, w) float32 in [0, 1]
     view: View  # the reference view at working resolution
     sources: list[str]
-    normal: np.ndarray | None = None  # (h, w, 3) float32 unit normals, reference camera frame (patchmatch)
+    normal: np.ndarray | None = None  # (h, w, 3) float16 unit normals, reference camera frame (patchmatch)
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -375,9 +377,12 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
 
         jobs = {v.name: PMJob(image(v)[1], [s.name for s in srcs], rng[0], rng[1], model.points_seen_by(v.name))
                 for v, srcs, rng in plan}
-        for name, (depth, normal, cost, wv, _) in patchmatch_all(list(jobs.values()), level_image, cfg).items():
+        pm_out = patchmatch_all(list(jobs.values()), level_image, cfg)
+        grey.clear()  # every view's image is no longer needed: memory for the filter
+        while pm_out:
+            name, (depth, normal, cost, wv, _) = pm_out.popitem()
             conf = np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32)
-            depth = depth.copy()
+            del cost
             depth[(conf < cfg.min_confidence) | ~np.isfinite(depth)] = 0
             results[name] = DepthResult(depth, conf, wv, jobs[name].sources, normal)
     for v, _, _ in plan:  # masked pixels (masks/NAME.png or the image's alpha) have no depth
