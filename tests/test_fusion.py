@@ -120,6 +120,31 @@ def test_fill_holes():
     assert abs(filled.area - s.area) < abs(holed.area - s.area)
 
 
+def _boundary_edges(m):
+    _, counts = np.unique(m.edges_sorted, axis=0, return_counts=True)
+    return int((counts == 1).sum())
+
+
+def test_tsdf_pinholes_filled_by_default_large_openings_kept():
+    """A TSDF mesh (voxel known) gets holes up to fill_holes_voxels voxels in radius closed by default: a
+    one-face pinhole is filled, a cap of radius ~0.5 (50 voxels) stays open, and 0 turns it off."""
+    s = trimesh.creation.icosphere(subdivisions=4)  # radius 1, edges ~0.08
+    centres = s.triangles_center
+    cap = centres[:, 2] > 0.87  # an opening of radius ~0.5 at the top
+    pin = np.argmin(np.linalg.norm(centres - [1, 0, 0], axis=1))  # one face on the side
+    keep = ~cap
+    keep[pin] = False
+    holed = trimesh.Trimesh(s.vertices, s.faces[keep], process=False)
+    holed.metadata["voxel_size"] = 0.01
+    assert _boundary_edges(holed) > 3
+    filled = clean(holed, CleanConfig())
+    assert _boundary_edges(filled) == _boundary_edges(holed) - 3  # the pinhole's three edges, not the cap
+    assert filled.bounds[1, 2] < 0.9  # the top is still open
+    assert _boundary_edges(clean(holed, CleanConfig(fill_holes_voxels=0))) == _boundary_edges(holed)
+    plain = trimesh.Trimesh(holed.vertices, holed.faces, process=False)  # no voxel: nothing filled
+    assert _boundary_edges(clean(plain, CleanConfig())) == _boundary_edges(holed)
+
+
 def test_export_formats(tmp_path):
     m = trimesh.creation.box()
     m.visual.vertex_colors = np.tile([10, 200, 30, 255], (len(m.vertices), 1))
