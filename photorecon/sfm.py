@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import shutil
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -426,23 +425,3 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
                                                  "cameras": cameras, "seconds": secs, "cached": stages.cached})
     return SfMResult(model, reg_names, unreg, secs, stages.cached)
 
-
-def plain_pycolmap(images_dir: str | Path, work: str | Path) -> dict:
-    """Reference run of pycolmap with its default options (for the benchmark): seconds per stage."""
-    pycolmap = _pycolmap()
-    work = Path(work)
-    work.mkdir(parents=True, exist_ok=True)
-    db = work / "database.db"
-    secs = {}
-    t0 = time.perf_counter()
-    pycolmap.extract_features(str(db), str(images_dir))
-    secs["extraction"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    pycolmap.match_exhaustive(str(db))
-    secs["matching"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    (work / "sparse").mkdir(exist_ok=True)
-    recs = pycolmap.incremental_mapping(str(db), str(images_dir), str(work / "sparse"))
-    secs["mapping"] = time.perf_counter() - t0
-    rec = max(recs.values(), key=lambda r: r.num_reg_images()) if recs else None
-    return {"seconds": secs, "model": _to_sparse(rec) if rec is not None else None}

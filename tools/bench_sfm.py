@@ -20,11 +20,37 @@ from photorecon import progress
 from photorecon.cameras import Intrinsics, View
 from photorecon.io.dataset import read_model
 from photorecon.metrics import pose_metrics
-from photorecon.sfm import SfMConfig, plain_pycolmap, run_sfm
+from photorecon.sfm import SfMConfig, read_colmap_binary, run_sfm
 from photorecon.synthetic import SynthConfig, synthesize
 
 HERZ = Path(__file__).resolve().parents[1] / "../shared/data/herz-jesu-p8"
 
+
+
+def plain_pycolmap(images_dir: str | Path, work: str | Path) -> dict:
+    """Reference run of pycolmap with its default options: seconds per stage and the largest model."""
+    import pycolmap
+
+    work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    db = work / "database.db"
+    secs = {}
+    t0 = time.perf_counter()
+    pycolmap.extract_features(str(db), str(images_dir))
+    secs["extraction"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    pycolmap.match_exhaustive(str(db))
+    secs["matching"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    (work / "sparse").mkdir(exist_ok=True)
+    recs = pycolmap.incremental_mapping(str(db), str(images_dir), str(work / "sparse"))
+    secs["mapping"] = time.perf_counter() - t0
+    if not recs:
+        return {"seconds": secs, "model": None}
+    best = work / "best"
+    best.mkdir(exist_ok=True)
+    max(recs.values(), key=lambda r: r.num_reg_images()).write_binary(str(best))
+    return {"seconds": secs, "model": read_colmap_binary(best)}
 
 def herz_jesu_reference(root: Path) -> list[View]:
     """Ground-truth cameras of Herz-Jesu-P8 (R = camera-to-world rotation, C = centre; P = K [R^T | -R^T C])."""
