@@ -331,6 +331,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if len(model.points) == 0 and cfg.triangulate:
         model = _triangulated(dataset)
         triangulated = len(model.points) > 0
+    t_tri = time.perf_counter() - t0
+    t0 = time.perf_counter()
     no_points = len(model.points) == 0
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
@@ -425,7 +427,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if not written:
         raise NoDepthError("mvs: no depth survived filtering in any view")
     report = {"views": written, "skipped": skipped, "method": cfg.method, "depth_seconds": t_depth,
-              "sparse_points": int(len(model.points)), "triangulated": triangulated, "consistency": consistency,
+              "sparse_points": int(len(model.points)), "triangulated": triangulated, "triangulation_seconds": t_tri, "consistency": consistency,
               "seconds_per_view": t_depth / max(len(results), 1), "per_view": stats}
     atomic_write_json(out / "mvs_report.json", report)
     return report
