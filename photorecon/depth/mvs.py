@@ -143,7 +143,13 @@ def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
     return [v for s, v in scores[: cfg.n_sources] if s > 0]
 
 
-def depth_range(model, view: View, near: float = 0.6, far: float = 1.25) -> tuple[float, float] | None:
+# Depth-range factors on the sparse points' (1st, 99th) percentiles, per method: PatchMatch searches depth
+# continuously, so a wide range costs it little; the sweep's planes get coarser as its range grows.
+DEPTH_RANGE_FACTORS = {"patchmatch": (0.6, 1.25), "sweep": (1 / 1.1, 1.1)}
+
+
+def depth_range(model, view: View, near: float = DEPTH_RANGE_FACTORS["patchmatch"][0],
+                far: float = DEPTH_RANGE_FACTORS["patchmatch"][1]) -> tuple[float, float] | None:
     """Depth range of the sparse points seen in ``view``: their 1st percentile x ``near`` to their 99th x ``far``;
     None without points. The near side is widened most: a surface seen at a grazing angle close to the camera
     (the ground in front of a facade) yields few SIFT matches, so the points stop well short of it (Herz-Jesu-P8:
@@ -342,9 +348,9 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
     plan: list[tuple[View, list[View], tuple[float, float]]] = []
-    sweep = cfg.method == "sweep"
-    near = cfg.depth_near if cfg.depth_near is not None else (1 / 1.1 if sweep else 0.6)
-    far = cfg.depth_far if cfg.depth_far is not None else (1.1 if sweep else 1.25)
+    near, far = DEPTH_RANGE_FACTORS[cfg.method]
+    near = near if cfg.depth_near is None else cfg.depth_near
+    far = far if cfg.depth_far is None else cfg.depth_far
     for v in model.views:
         rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v, near, far)
         if rng is None:
@@ -435,7 +441,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if not written:
         raise NoDepthError("mvs: no depth survived filtering in any view")
     report = {"views": written, "skipped": skipped, "method": cfg.method, "depth_seconds": t_depth,
-              "sparse_points": int(len(model.points)), "triangulated": triangulated, "triangulation_seconds": t_tri, "consistency": consistency,
+              "sparse_points": int(len(model.points)), "triangulated": triangulated,
+              "triangulation_seconds": t_tri, "consistency": consistency,
               "seconds_per_view": t_depth / max(len(results), 1), "per_view": stats}
     atomic_write_json(out / "mvs_report.json", report)
     return report

@@ -170,7 +170,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         use_geo, lam = False, 0.0
     delta = 3.0
     if init_cost is not None and init_cost.shape == (H, W):
-        cost = np.ascontiguousarray(init_cost, np.float32).copy()
+        cost = np.array(init_cost, np.float32)  # a copy: the kernel updates it
         cost[depth <= 0] = 2.0 + lam * delta
     else:
         cost = np.empty((H, W), np.float32)
