@@ -5,7 +5,7 @@ Conventions used everywhere inside photorecon (converted only at the edges, see 
 * A pose is ``cam_from_world``: a 4x4 float64 rigid transform taking world points to camera points,
   ``X_cam = R @ X_world + t``, in **OpenCV camera axes** (x right, y down, z forward).
 * Pixel coordinates ``(u, v)`` are (column, row) with **(0, 0) at the centre of the top-left pixel**
-  (OpenCV). COLMAP puts that centre at (0.5, 0.5); ``Intrinsics.from_colmap`` / ``to_colmap`` convert.
+  (OpenCV). COLMAP puts that centre at (0.5, 0.5); ``conventions.intrinsics_from_colmap`` / ``colmap_from_intrinsics`` convert.
 * Depth maps are **z-depth** (distance along the optical axis, not along the ray) in scene units,
   shape (H, W), 0 where there is no surface.
 """
@@ -91,28 +91,6 @@ class Intrinsics:
         size = width if axis == "x" else height
         f = 0.5 * size / math.tan(math.radians(fov_deg) / 2)
         return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
-
-    @classmethod
-    def from_colmap(cls, model: str, width: int, height: int, params) -> "Intrinsics":
-        """From a COLMAP camera (model name, size, parameter list). Shifts the principal point by -0.5 px."""
-        if model not in COLMAP_MODELS:
-            raise BadArgumentError(f"COLMAP camera model {model!r} is not supported; expected one of {sorted(COLMAP_MODELS)}")
-        names = COLMAP_MODELS[model]
-        params = [float(p) for p in params]
-        if len(params) != len(names):
-            raise BadArgumentError(f"COLMAP {model}: expected {len(names)} parameters {names}, got {len(params)}")
-        p = dict(zip(names, params))
-        if "f" in p:
-            p["fx"] = p["fy"] = p.pop("f")
-        p["cx"] -= 0.5
-        p["cy"] -= 0.5
-        return cls(width, height, model=model, **p)
-
-    def to_colmap(self) -> tuple[str, int, int, list[float]]:
-        """(model, width, height, params) in COLMAP's order and pixel convention (+0.5 px)."""
-        vals = {"f": self.fx, "fx": self.fx, "fy": self.fy, "cx": self.cx + 0.5, "cy": self.cy + 0.5,
-                "k1": self.k1, "k2": self.k2, "p1": self.p1, "p2": self.p2}
-        return self.model, self.width, self.height, [float(vals[n]) for n in COLMAP_MODELS[self.model]]
 
     # --- properties ---------------------------------------------------------------------------------
     @property

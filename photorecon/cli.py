@@ -3,74 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import sys
-import typing
 
 from . import __version__
-from .errors import PhotoreconError
+from .config import COMMANDS
+from .errors import PhotoreconError, from_os_error
 
 log = logging.getLogger("photorecon")
-
-
-# --- configs -> argparse -----------------------------------------------------------------------------------
-def add_config_arguments(parser: argparse.ArgumentParser, config_cls, skip: tuple[str, ...] = (),
-                         defaults=None) -> None:
-    """One ``--flag`` per dataclass field of ``config_cls`` (or ``metadata['flag']``); help from ``field(metadata={'help': ...})``,
-    choices from ``Literal`` annotations, ``--flag/--no-flag`` for booleans. Default values come from the
-    instance ``defaults`` when given (a stage whose caller overrides a config default), else the class."""
-    hints = typing.get_type_hints(config_cls)
-    for f in dataclasses.fields(config_cls):
-        if f.name in skip or f.metadata.get("cli") is False:
-            continue
-        flag = f.metadata.get("flag") or "--" + f.name.replace("_", "-")
-        tp = hints[f.name]
-        if defaults is not None:
-            default = getattr(defaults, f.name)
-        else:
-            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        help_ = f.metadata.get("help", "")
-        kw: dict = {"dest": f.name, "default": default, "help": f"{help_} (default: {default})"}
-        origin, args = typing.get_origin(tp), typing.get_args(tp)
-        if tp is bool:
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kw)
-            continue
-        if origin is typing.Literal:
-            kw["choices"] = list(args)
-            kw["type"] = type(args[0])
-        elif origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-            inner = [a for a in args if a is not type(None)]
-            kw["type"] = _parse_tuple if typing.get_origin(inner[0]) is tuple else inner[0]
-        elif origin is tuple:
-            kw["type"] = _parse_tuple
-        else:
-            kw["type"] = tp
-        parser.add_argument(flag, **kw)
-
-
-def _parse_tuple(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.replace(",", " ").split())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected numbers separated by commas, got {text!r}") from None
-
-
-def config_from_args(config_cls, args: argparse.Namespace, **overrides):
-    names = {f.name for f in dataclasses.fields(config_cls)}
-    values = {k: v for k, v in vars(args).items() if k in names}
-    values.update(overrides)
-    return config_cls(**values)
-
-
-# --- commands ---------------------------------------------------------------------------------------------
-COMMANDS: dict[str, typing.Callable[[argparse._SubParsersAction], None]] = {}
-
-
-def command(fn):
-    """Register a function ``fn(subparsers)`` that adds one sub-command."""
-    COMMANDS[fn.__name__] = fn
-    return fn
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -111,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     except PhotoreconError as exc:
         print(f"photorecon {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:  # a file system failure that no stage turned into a photorecon error
+        err = from_os_error(exc, getattr(args, "out", None))
+        print(f"photorecon {args.command}: error: {err}", file=sys.stderr)
+        return err.exit_code
     except KeyboardInterrupt:
         print(f"photorecon {args.command}: interrupted; incomplete outputs were not kept", file=sys.stderr)
         return 130

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from .cli import add_config_arguments, command, config_from_args
+from .config import add_config_arguments, command, config_from_args
 
 
 def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:

@@ -21,13 +21,17 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ._validate import as_array, as_rigid, as_rotation
-from .cameras import Intrinsics, invert_rigid, rigid
+from .cameras import COLMAP_MODELS, Intrinsics, invert_rigid, rigid
 from .errors import BadArgumentError
 
 # OpenCV camera axes -> OpenGL camera axes (and back: the matrix is its own inverse).
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 # OpenCV camera axes -> PyTorch3D view axes (x left, y up, z forward).
 P3D_FROM_CV = np.diag([-1.0, -1.0, 1.0])
+
+# A z-up world turned into a y-up one by a proper rotation: (x, y, z) -> (x, z, -y). nerfstudio's COLMAP import
+# applies exactly this; synthetic rigs use it for meshes modelled y-up (the Stanford bunny).
+Y_UP_FROM_Z_UP = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
 
 # World re-orientations applied by NeRF tools when they convert a COLMAP model: new_world_from_world.
 #  * "none": the world is kept as it is.
@@ -39,8 +43,48 @@ P3D_FROM_CV = np.diag([-1.0, -1.0, 1.0])
 NERF_WORLDS: dict[str, np.ndarray] = {
     "none": np.eye(4),
     "instant-ngp": np.array([[0.0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0], [0, 0, 0, 1]]),
-    "nerfstudio": np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]]),
+    "nerfstudio": rigid(Y_UP_FROM_Z_UP, np.zeros(3)),
 }
+
+
+# --- pixel convention ------------------------------------------------------------------------------------
+# photorecon (OpenCV): the centre of the top-left pixel is (0, 0). COLMAP, nerfstudio and instant-ngp put it at
+# (0.5, 0.5). These two functions are the only place that half pixel is added or removed.
+COLMAP_PIXEL_SHIFT = 0.5
+
+
+def opencv_from_colmap_pixels(xy):
+    """Pixel coordinates (any shape, last axis (u, v) or scalars) in COLMAP's / NeRF's convention -> photorecon's."""
+    return np.asarray(xy, float) - COLMAP_PIXEL_SHIFT
+
+
+def colmap_from_opencv_pixels(xy):
+    """Pixel coordinates in photorecon's convention -> COLMAP's / NeRF's (centre of the top-left pixel at 0.5)."""
+    return np.asarray(xy, float) + COLMAP_PIXEL_SHIFT
+
+
+def intrinsics_from_colmap(model: str, width: int, height: int, params) -> Intrinsics:
+    """A COLMAP camera (model name, size, parameter list in COLMAP's order) -> ``Intrinsics`` (principal point
+    moved to photorecon's pixel convention)."""
+    if model not in COLMAP_MODELS:
+        raise BadArgumentError(f"COLMAP camera model {model!r} is not supported; expected one of {sorted(COLMAP_MODELS)}")
+    names = COLMAP_MODELS[model]
+    params = [float(p) for p in params]
+    if len(params) != len(names):
+        raise BadArgumentError(f"COLMAP {model}: expected {len(names)} parameters {names}, got {len(params)}")
+    p = dict(zip(names, params))
+    if "f" in p:
+        p["fx"] = p["fy"] = p.pop("f")
+    p["cx"], p["cy"] = (float(c) for c in opencv_from_colmap_pixels([p["cx"], p["cy"]]))
+    return Intrinsics(width, height, model=model, **p)
+
+
+def colmap_from_intrinsics(intr: Intrinsics) -> tuple[str, int, int, list[float]]:
+    """``Intrinsics`` -> (model, width, height, params) in COLMAP's parameter order and pixel convention."""
+    cx, cy = (float(c) for c in colmap_from_opencv_pixels([intr.cx, intr.cy]))
+    vals = {"f": intr.fx, "fx": intr.fx, "fy": intr.fy, "cx": cx, "cy": cy,
+            "k1": intr.k1, "k2": intr.k2, "p1": intr.p1, "p2": intr.p2}
+    return intr.model, intr.width, intr.height, [float(vals[n]) for n in COLMAP_MODELS[intr.model]]
 
 
 # --- COLMAP ----------------------------------------------------------------------------------------------

@@ -51,3 +51,23 @@ class OutputError(PhotoreconError):
     """The output location cannot be used (not empty, inside the input, not writable)."""
 
     exit_code = 8
+
+
+def from_os_error(exc: OSError, out=None) -> PhotoreconError:
+    """An ``OSError`` that escaped a stage as the photorecon error it stands for, naming the file: an
+    ``OutputError`` when the file lies in the output folder ``out`` (or the disk is full), else an
+    ``InputDataError``."""
+    import errno
+    from pathlib import Path
+
+    name = exc.filename or "a file"
+    what = exc.strerror or str(exc)
+    inside_out = False
+    if out is not None and exc.filename:
+        try:
+            inside_out = Path(exc.filename).resolve().is_relative_to(Path(out).resolve())
+        except (OSError, ValueError):
+            pass
+    if inside_out or exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
+        return OutputError(f"{name}: {what}; check the output folder's space and permissions")
+    return InputDataError(f"{name}: {what}")

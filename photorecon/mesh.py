@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .errors import BadArgumentError, EmptyMeshError
+from .errors import BadArgumentError, EmptyMeshError, InputDataError
 from .io.atomic import atomic_path
 
 log = logging.getLogger("photorecon")
+
+MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 
 
 @dataclass
@@ -159,7 +161,23 @@ def export(mesh: trimesh.Trimesh, path: str | Path) -> Path:
     return path
 
 
-def load(path: str | Path) -> trimesh.Trimesh:
-    from .synthetic import load_mesh
+def load_mesh(path: str | Path) -> trimesh.Trimesh:
+    """Load a mesh file as one ``Trimesh`` (scenes are concatenated), keeping texture/vertex colours.
 
-    return load_mesh(path)
+    Raises ``InputDataError`` naming the file when it is missing, unreadable or has no faces.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputDataError(f"{path}: no such mesh file")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise InputDataError(f"{path}: unsupported mesh format {path.suffix!r}; expected one of {MESH_SUFFIXES}")
+    try:
+        loaded = trimesh.load(str(path), process=False)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise InputDataError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)] if loaded.geometry else []
+        loaded = trimesh.util.concatenate(geoms) if geoms else None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise InputDataError(f"{path}: the mesh has no faces; a triangle mesh is needed to render")
+    return loaded

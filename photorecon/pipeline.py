@@ -130,7 +130,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     from .io.nerf import write_transforms
     from .io.output import prepare_output
     from .ingest import VIDEO_SUFFIXES
-    from .mesh import clean, export, load, parse_formats
+    from .mesh import clean, export, load_mesh, parse_formats
     from .preview import render_preview
     from .scale import given_units, scale_output
     from .sfm import run_sfm
@@ -229,7 +229,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
             return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames)}
 
         def preview() -> None:
-            mesh = fused["mesh"] if "mesh" in fused else load(out / f"mesh.{formats[0]}")
+            mesh = fused["mesh"] if "mesh" in fused else load_mesh(out / f"mesh.{formats[0]}")
             render_preview(mesh, out / "preview.png", cameras=ds.views)
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},

@@ -42,7 +42,7 @@ def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] 
                    size: int = 360, up=None) -> Path:
     """Render ``mesh`` (vertex colours if any, else grey) from ``n`` viewpoints side by side, drawing the
     ``cameras`` as frusta; write a PNG."""
-    from .synthetic import Renderer
+    from .render import Renderer
 
     if up is None:
         up = (0.0, 0.0, 1.0)

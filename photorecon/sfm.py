@@ -1,4 +1,4 @@
-"""Structure from motion through pycolmap: the **only** module that imports pycolmap (its API changes
+"""Structure from motion through pycolmap (with ``io.colmap`` and ``triangulate``, the only modules that import it; its API changes
 between versions; pycolmap 4.x: ``image.cam_from_world()`` is a method).
 
 Stages, each a function that writes one output and returns its path (hloc's style), run by the stage runner
@@ -22,9 +22,11 @@ from typing import Literal
 
 import numpy as np
 
-from .cameras import Intrinsics, View
+from .cameras import Intrinsics
+from .conventions import colmap_from_intrinsics
 from .errors import BadArgumentError, InputDataError, SfMError
 from .io.atomic import atomic_path, atomic_write_json
+from .io.colmap import read_colmap_binary, sparse_from_pycolmap
 from .io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
 from .stages import Stages, atomic_dir, fingerprint, replace_dir
 
@@ -68,54 +70,6 @@ def _quiet(pycolmap) -> None:
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 2
 
 
-# --- reading and writing models ------------------------------------------------------------------------------
-def _to_sparse(rec) -> SparseModel:
-    views, obs = [], {}
-    for image_id in sorted(rec.reg_image_ids()):
-        image = rec.images[image_id]
-        cam = rec.cameras[image.camera_id]
-        model = cam.model.name if hasattr(cam.model, "name") else str(cam.model)
-        try:
-            intr = Intrinsics.from_colmap(model, cam.width, cam.height, list(cam.params))
-        except BadArgumentError as exc:
-            raise InputDataError(f"image {image.name}: {exc}") from None
-        M = np.eye(4)
-        M[:3] = image.cam_from_world().matrix()
-        stem = Path(image.name).stem
-        views.append(View(stem, intr, M, extra={"image_file": image.name, "colmap_image_id": int(image_id)}))
-        pts = image.points2D
-        xy = np.array([p.xy for p in pts], float).reshape(-1, 2) - 0.5
-        ids = np.array([p.point3D_id if p.has_point3D() else -1 for p in pts], np.int64)
-        obs[stem] = (xy, ids)
-    pids = np.array(sorted(rec.point3D_ids()), np.int64) if rec.num_points3D() else np.zeros(0, np.int64)
-    xyz = np.array([rec.points3D[int(i)].xyz for i in pids], float).reshape(-1, 3)
-    rgb = np.array([rec.points3D[int(i)].color for i in pids], np.uint8).reshape(-1, 3)
-    err = np.array([rec.points3D[int(i)].error for i in pids], float)
-    return SparseModel(views, xyz, rgb, pids, err, obs)
-
-
-def read_colmap_binary(folder: str | Path) -> SparseModel:
-    """A COLMAP binary model (cameras.bin, images.bin, points3D.bin) as a ``SparseModel``."""
-    pycolmap = _pycolmap()
-    try:
-        rec = pycolmap.Reconstruction(str(folder))
-    except Exception as exc:  # pycolmap raises RuntimeError/ValueError on unreadable models
-        raise InputDataError(f"{folder}: cannot read the COLMAP model ({exc})") from None
-    return _to_sparse(rec)
-
-
-def write_colmap_binary(model: SparseModel, folder: str | Path) -> Path:
-    """Write ``model`` as a COLMAP binary model (through a text copy that pycolmap converts)."""
-    pycolmap = _pycolmap()
-    folder = Path(folder)
-    with tempfile.TemporaryDirectory() as tmp:
-        write_colmap_text(model, tmp)
-        rec = pycolmap.Reconstruction(tmp)
-        folder.mkdir(parents=True, exist_ok=True)
-        rec.write_binary(str(folder))
-    return folder
-
-
 # --- the SfM stages: extract -> match -> map -> undistort, each writing one output and returning its path ----
 @dataclass
 class SfMResult:
@@ -153,11 +107,11 @@ def camera_groups(images: list, cfg: SfMConfig) -> list[dict]:
             if (w, h) != (given.width, given.height) and cfg.intrinsics:
                 raise InputDataError(f"{cfg.intrinsics}: intrinsics given for one image size, but "
                                      f"{names[0]} is {w}x{h}; give images of one size")
-            model, params = "PINHOLE", given.to_colmap()[3]
+            model, params = "PINHOLE", colmap_from_intrinsics(given)[3]
         else:
             model, params = cfg.camera_model, []
             if f_prior:
-                params = Intrinsics(w, h, f_prior, f_prior, (w - 1) / 2, (h - 1) / 2, model=model).to_colmap()[3]
+                params = colmap_from_intrinsics(Intrinsics(w, h, f_prior, f_prior, (w - 1) / 2, (h - 1) / 2, model=model))[3]
         cameras.append({"model": model, "params": ",".join(repr(float(p)) for p in params), "images": names})
     return cameras
 
@@ -312,7 +266,7 @@ def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mas
     pycolmap = _pycolmap()
     with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
         pycolmap.undistort_images(und, str(model_dir), str(images_dir))
-        model = _to_sparse(pycolmap.Reconstruction(f"{und}/sparse"))
+        model = sparse_from_pycolmap(pycolmap.Reconstruction(f"{und}/sparse"))
         masks = Path(und) / "masks"
         masks.mkdir()
         n_masks = _undistort_masks(model_dir, model, mask_dir, masks) if mask_dir is not None else 0

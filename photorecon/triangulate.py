@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from .cameras import View
+from .conventions import colmap_from_intrinsics
 from .errors import BadArgumentError, InputDataError, OutputError
 from .io.colmap_text import SparseModel
 from .io.dataset import IMAGE_SUFFIXES
@@ -369,7 +370,7 @@ def _given_reconstruction(pycolmap, db, views: list[View], names: list[str], wor
         rig = rigs[fr.rig_id]
         if rig.num_sensors() != 1 or rig.ref_sensor_id.id != dbim.camera_id:
             raise InputDataError(f"view {v.name}: unexpected COLMAP rig {rig.rig_id} for camera {dbim.camera_id}")
-        m, w, h, params = v.intrinsics.to_colmap()
+        m, w, h, params = colmap_from_intrinsics(v.intrinsics)
         cam = pycolmap.Camera(model=m, width=w, height=h, params=params, camera_id=dbim.camera_id)
         db.update_camera(cam)  # keep the database consistent with the given intrinsics
         rec.add_camera(cam)

@@ -3,6 +3,7 @@ import pytest
 
 from photorecon.cameras import (Intrinsics, backproject_depth, camera_center, invert_rigid, look_at, look_at_views,
                                 project, ring_positions, sphere_positions)
+from photorecon.conventions import intrinsics_from_colmap
 from photorecon.errors import BadArgumentError
 
 rng = np.random.default_rng(1)
@@ -10,9 +11,9 @@ rng = np.random.default_rng(1)
 
 @pytest.mark.parametrize("intr", [
     Intrinsics(640, 480, 500, 500, 319.5, 239.5),
-    Intrinsics.from_colmap("SIMPLE_RADIAL", 640, 480, [520, 320, 240, -0.08]),
-    Intrinsics.from_colmap("RADIAL", 640, 480, [520, 320, 240, -0.08, 0.01]),
-    Intrinsics.from_colmap("OPENCV", 640, 480, [520, 515, 322, 238, -0.1, 0.02, 0.001, -0.0015]),
+    intrinsics_from_colmap("SIMPLE_RADIAL", 640, 480, [520, 320, 240, -0.08]),
+    intrinsics_from_colmap("RADIAL", 640, 480, [520, 320, 240, -0.08, 0.01]),
+    intrinsics_from_colmap("OPENCV", 640, 480, [520, 515, 322, 238, -0.1, 0.02, 0.001, -0.0015]),
 ])
 def test_backprojected_depth_projects_to_its_pixels(intr):
     T = look_at([1.0, -2.0, 0.5], [0.0, 0.0, 0.0])
@@ -61,7 +62,7 @@ def test_scaled_intrinsics_map_pixel_centres():
 
 
 def test_colmap_pixel_centre_shift():
-    intr = Intrinsics.from_colmap("PINHOLE", 640, 480, [500, 500, 320, 240])
+    intr = intrinsics_from_colmap("PINHOLE", 640, 480, [500, 500, 320, 240])
     assert (intr.cx, intr.cy) == (319.5, 239.5)
 
 

@@ -47,8 +47,8 @@ def test_intrinsics_roundtrips():
     for model, params in [("SIMPLE_PINHOLE", [500, 320, 240]), ("PINHOLE", [500, 501, 320, 240]),
                           ("SIMPLE_RADIAL", [500, 320, 240, 0.01]), ("RADIAL", [500, 320, 240, 0.01, -0.002]),
                           ("OPENCV", [500, 501, 320, 240, 0.01, -0.002, 0.001, 0.0005])]:
-        i = Intrinsics.from_colmap(model, 640, 480, params)
-        assert i.to_colmap() == (model, 640, 480, [float(p) for p in params])
+        i = cv.intrinsics_from_colmap(model, 640, 480, params)
+        assert cv.colmap_from_intrinsics(i) == (model, 640, 480, [float(p) for p in params])
     o3 = cv.intrinsics_from_open3d(cv.open3d_intrinsic(intr))
     assert (o3.fx, o3.fy, o3.cx, o3.cy) == (intr.fx, intr.fy, intr.cx, intr.cy)
 
@@ -172,3 +172,13 @@ def test_bad_quaternion_and_world_names():
         cv.nerf_from_opencv(np.eye(4), "blender-world")
     with pytest.raises(ValueError, match="expected shape"):
         cv.opencv_from_pytorch3d(np.eye(3), [0, 0])
+
+
+def test_colmap_half_pixel_is_semantic():
+    """COLMAP's image centre of a 640x480 camera is (320, 240); photorecon's is (319.5, 239.5): the centre of
+    the top-left pixel is (0.5, 0.5) there and (0, 0) here. Points and principal points shift alike."""
+    i = cv.intrinsics_from_colmap("PINHOLE", 640, 480, [500, 500, 320, 240])
+    assert (i.cx, i.cy) == ((640 - 1) / 2, (480 - 1) / 2)
+    top_left_centre_colmap = np.array([[0.5, 0.5]])
+    np.testing.assert_array_equal(cv.opencv_from_colmap_pixels(top_left_centre_colmap), [[0.0, 0.0]])
+    np.testing.assert_array_equal(cv.colmap_from_opencv_pixels([[0.0, 0.0]]), top_left_centre_colmap)

@@ -20,7 +20,8 @@ from photorecon import progress
 from photorecon.cameras import Intrinsics, View
 from photorecon.io.dataset import read_model
 from photorecon.metrics import pose_metrics
-from photorecon.sfm import SfMConfig, read_colmap_binary, run_sfm
+from photorecon.io.colmap import read_colmap_binary
+from photorecon.sfm import SfMConfig, run_sfm
 from photorecon.synthetic import SynthConfig, synthesize
 
 HERZ = Path(__file__).resolve().parents[1] / "../shared/data/herz-jesu-p8"

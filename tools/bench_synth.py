@@ -12,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from photorecon.synthetic import Renderer, SynthConfig, load_mesh, make_scene, make_views, normalize_mesh
+from photorecon.mesh import load_mesh
+from photorecon.render import Renderer
+from photorecon.synthetic import SynthConfig, make_scene, make_views, normalize_mesh
 
 
 def main() -> None:

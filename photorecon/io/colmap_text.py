@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..cameras import Intrinsics, View
-from ..conventions import colmap_from_opencv, opencv_from_colmap
+from ..conventions import (colmap_from_intrinsics, colmap_from_opencv, colmap_from_opencv_pixels,
+                           intrinsics_from_colmap, opencv_from_colmap, opencv_from_colmap_pixels)
 from ..errors import InputDataError
 from .atomic import atomic_write_text
 
@@ -50,7 +51,7 @@ def _image_key(view: View) -> str:
 
 
 def _cam_key(view: View) -> tuple:
-    m, w, h, params = view.intrinsics.to_colmap()
+    m, w, h, params = colmap_from_intrinsics(view.intrinsics)
     return m, w, h, tuple(params)
 
 
@@ -74,8 +75,8 @@ def write_colmap_text(model: SparseModel, folder: str | Path) -> Path:
         img_lines.append(f"{i} " + " ".join(repr(float(x)) for x in (*q, *t)) + f" {cam_id} {_image_key(view)}")
         uv, ids = model.observations.get(view.name, (np.zeros((0, 2)), np.zeros(0, np.int64)))
         parts = []
-        for j, ((u, v), pid) in enumerate(zip(uv, ids)):
-            parts.append(f"{float(u) + 0.5!r} {float(v) + 0.5!r} {int(pid)}")
+        for j, ((u, v), pid) in enumerate(zip(colmap_from_opencv_pixels(uv).reshape(-1, 2), ids)):
+            parts.append(f"{float(u)!r} {float(v)!r} {int(pid)}")
             if pid >= 0 and int(pid) in tracks:
                 tracks[int(pid)].append((i, j))
         img_lines.append(" ".join(parts))
@@ -112,7 +113,7 @@ def read_colmap_text(folder: str | Path) -> SparseModel:
             continue
         try:
             tok = ln.split()
-            cams[int(tok[0])] = Intrinsics.from_colmap(tok[1], int(tok[2]), int(tok[3]), [float(x) for x in tok[4:]])
+            cams[int(tok[0])] = intrinsics_from_colmap(tok[1], int(tok[2]), int(tok[3]), [float(x) for x in tok[4:]])
         except (ValueError, IndexError) as exc:
             raise InputDataError(f"{path}: cannot parse camera line {n!r}: {exc}") from None
     path = folder / "images.txt"
@@ -139,7 +140,7 @@ def read_colmap_text(folder: str | Path) -> SparseModel:
         stem = Path(name).stem
         views.append(View(stem, intr, T, extra={"image_file": name, "colmap_image_id": int(tok[0]),
                                                  "colmap_camera_id": cam_id}))
-        obs[stem] = (arr[:, :2] - 0.5, arr[:, 2].astype(np.int64))
+        obs[stem] = (opencv_from_colmap_pixels(arr[:, :2]), arr[:, 2].astype(np.int64))
     path = folder / "points3D.txt"
     ids, xyz, rgb, err = [], [], [], []
     for ln in _data_lines(path):

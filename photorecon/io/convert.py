@@ -66,7 +66,7 @@ def convert_cameras(src, dst, to: str = "auto", world: str = "none", src_world: 
     if to == "colmap-text":
         return write_colmap_text(model, dst)
     if to == "colmap-bin":
-        from ..sfm import write_colmap_binary
+        from .colmap import write_colmap_binary
 
         return write_colmap_binary(model, dst)
     if to == "transforms":

@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..cameras import View
@@ -45,7 +44,7 @@ def read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
     if (path / "cameras.txt").is_file():
         return read_colmap_text(path)
     if (path / "cameras.bin").is_file():
-        from ..sfm import read_colmap_binary
+        from .colmap import read_colmap_binary
 
         return read_colmap_binary(path)
     for sub in ("sparse/0", "sparse"):

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ..cameras import Intrinsics, View
-from ..conventions import NERF_WORLDS, nerf_from_opencv, opencv_from_nerf
+from ..conventions import (NERF_WORLDS, colmap_from_opencv_pixels, nerf_from_opencv, opencv_from_colmap_pixels,
+                           opencv_from_nerf)
 from ..errors import InputDataError
 from .atomic import atomic_write_json
 
@@ -35,7 +36,8 @@ BLENDER_SPLITS = ("train", "val", "test")
 
 
 def _intr_dict(intr: Intrinsics) -> dict:
-    d = {"camera_model": "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy, "cx": intr.cx + 0.5, "cy": intr.cy + 0.5,
+    d = {"camera_model": "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy, "cx": float(colmap_from_opencv_pixels(intr.cx)),
+         "cy": float(colmap_from_opencv_pixels(intr.cy)),
          "w": intr.width, "h": intr.height}
     d.update({k: getattr(intr, k) for k in ("k1", "k2", "p1", "p2")})
     return d
@@ -160,7 +162,8 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
             dist = {k: float(src.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")}
             model = "OPENCV" if any(dist.values()) else "PINHOLE"
             intr = Intrinsics(int(src["w"]), int(src["h"]), float(src["fl_x"]), float(src.get("fl_y", src["fl_x"])),
-                              float(src["cx"]) - 0.5, float(src["cy"]) - 0.5, model=model,
+                              float(opencv_from_colmap_pixels(float(src["cx"]))),
+                              float(opencv_from_colmap_pixels(float(src["cy"]))), model=model,
                               **(dist if model == "OPENCV" else {}))
             T = opencv_from_nerf(np.asarray(fr["transform_matrix"], float), world)
             file_path = str(fr["file_path"])

@@ -31,6 +31,10 @@ def prepare_output(out: str | Path, overwrite: bool = False, inputs: tuple = ())
     if out.is_dir() and any(out.iterdir()) and not (out / MARKER).exists() and not overwrite:
         raise OutputError(f"output folder {out} is not empty and was not written by photorecon; "
                           "pass --overwrite or choose another folder")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / MARKER).write_text("written by photorecon\n")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / MARKER).write_text("written by photorecon\n")
+    except OSError as exc:
+        raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
+                          "choose a writable folder") from None
     return out
