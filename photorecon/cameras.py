@@ -319,13 +319,22 @@ def valid_depth_mask(depth) -> np.ndarray:
 
 @dataclass
 class View:
-    """One image with its camera: ``name`` (file stem), intrinsics and ``cam_from_world`` (OpenCV axes)."""
+    """One image with its camera: ``name`` (file stem), intrinsics and ``cam_from_world`` (OpenCV axes).
+
+    Files: ``image_path`` (an absolute or working-directory path, when a reader knows it), ``image_file``
+    (the image's name relative to its dataset's ``images/`` folder, e.g. ``IMG_1.JPG`` or ``train/r_0.png``;
+    None = ``NAME`` plus an image suffix), and the ``mask_file`` / ``depth_file`` paths that a transforms.json
+    frame gives (``mask_path``, ``depth_file_path``). ``extra`` holds a camera format's own metadata only
+    (COLMAP ids, LLFF's near / far bounds, NeuS index and skew), never a file photorecon reads."""
 
     name: str
     intrinsics: Intrinsics
     cam_from_world: np.ndarray
     image_path: str | None = None
     extra: dict = field(default_factory=dict)
+    image_file: str | None = None
+    mask_file: str | None = None
+    depth_file: str | None = None
 
     def __post_init__(self):
         self.cam_from_world = as_rigid(self.cam_from_world, f"view {self.name!r} cam_from_world")

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .io.atomic import atomic_write_json
+from .layout import Layout
 
 log = logging.getLogger("photorecon")
 
@@ -32,7 +33,8 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = F
     out = prepare_output(out, overwrite)
     t0 = time.perf_counter()
     data = out / "scene"
-    if not (data / "gt_mesh.ply").is_file():
+    data_layout = Layout(data)
+    if not data_layout.gt_mesh.is_file():
         synthesize(SynthConfig(scene=cfg.scene, views=cfg.views, width=cfg.width, height=cfg.height), data,
                    overwrite=True)
     t_synth = time.perf_counter() - t0
@@ -40,7 +42,7 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = F
     from .depth.mvs import MVS_PRESETS, MVSConfig
 
     # 512x384 synthetic images: the "fast" PatchMatch preset keeps the demo within a few minutes on 2 cores
-    report = reconstruct(data / "images", rec, StageConfigs(mvs=MVSConfig(**MVS_PRESETS["fast"])))
+    report = reconstruct(data_layout.images, rec, StageConfigs(mvs=MVSConfig(**MVS_PRESETS["fast"])))
     poses, m = evaluate_reconstruction(rec, data)
     total = time.perf_counter() - t0
     summary = {"scene": cfg.scene, "views": cfg.views, "size": f"{cfg.width}x{cfg.height}",

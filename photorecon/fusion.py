@@ -529,10 +529,9 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
                  overwrite: bool = False, formats: tuple[str, ...] = ("ply",), masks_dir=None):
     """``photorecon fuse``: dataset folder (synth layout) -> ``out/mesh.ply`` (+ other formats, preview.png).
     ``masks_dir``: masks (NAME.png or NAME.EXT.png, 0 = ignore) instead of DATASET/masks. Returns the mesh path."""
-    from pathlib import Path
-
     from .io.dataset import Dataset
     from .io.output import prepare_output
+    from .layout import Layout
     from .mesh import CleanConfig, clean, export
     from .preview import render_preview
 
@@ -542,9 +541,10 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     out = prepare_output(out, overwrite, inputs=(root,) + ((masks_dir,) if masks_dir else ()))
     mesh = fuse(frames, cfg, ds.model.points)
     mesh = clean(mesh, clean_cfg or CleanConfig())
-    path = Path(out) / "mesh.ply"
+    layout = Layout(out)
+    path = layout.mesh("ply")
     for fmt in formats:
-        export(mesh, Path(out) / f"mesh.{fmt}")
-    render_preview(mesh, Path(out) / "preview.png", cameras=[f.view for f in frames])
+        export(mesh, layout.mesh(fmt))
+    render_preview(mesh, layout.preview, cameras=[f.view for f in frames])
     log.info("fuse: %d views -> %s (%d vertices, %d faces)", len(frames), path, len(mesh.vertices), len(mesh.faces))
     return path

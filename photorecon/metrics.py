@@ -412,16 +412,15 @@ def pose_metrics(estimate: list, reference: list) -> dict:
 def evaluate_reconstruction(rec_dir, data_dir, n_samples: int = 100_000) -> tuple[dict, MeshMetrics]:
     """A ``reconstruct`` output folder against a synthetic dataset: pose metrics, and mesh metrics after
     moving the mesh into the truth's world with the Sim3 that aligns the cameras."""
-    from pathlib import Path
-
     from .io.dataset import read_model
+    from .layout import Layout
 
-    rec_dir, data_dir = Path(rec_dir), Path(data_dir)
-    ref = read_model(data_dir / "sparse" / "0").views
-    est = read_model(rec_dir / "sparse" / "0").views
+    rec_layout, ref_layout = Layout(rec_dir), Layout(data_dir)
+    ref = read_model(ref_layout.sparse).views
+    est = read_model(rec_layout.sparse).views
     poses = pose_metrics(est, ref)
     s, R, t = align_cameras(est, ref)
-    mesh = trimesh.load(rec_dir / "mesh.ply", process=False)
+    mesh = trimesh.load(rec_layout.mesh("ply"), process=False)
     mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
-    gt = trimesh.load(data_dir / "gt_mesh.ply", process=False)
+    gt = trimesh.load(ref_layout.gt_mesh, process=False)
     return poses, mesh_metrics(mesh, gt, n_samples=n_samples)

@@ -42,6 +42,7 @@ from .io.atomic import atomic_write_json, atomic_write_text
 from .mesh import CleanConfig
 from .scale import ScaleConfig
 from .sfm import SfMConfig
+from .layout import Layout
 from .stages import Stages, atomic_dir, fingerprint
 
 log = logging.getLogger("photorecon")
@@ -79,11 +80,12 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
     from .io.colmap_text import SparseModel
     from .io.images import mask_file, read_alpha, read_image, read_mask, write_image
 
-    img_out, mask_out = out / "images", out / "masks"
+    layout = Layout(out)
+    img_out, mask_out = layout.images, layout.masks
     img_out.mkdir(parents=True, exist_ok=True)
     views = []
     for v in model.views:
-        name = v.extra.get("image_file", v.name)
+        name = v.image_file or v.name
         src = images_dir / name
         if not src.is_file():
             cands = [p for p in images_dir.glob(v.name + ".*")]
@@ -116,7 +118,7 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
             write_image(mask_path, mask)
         else:
             mask_path.unlink(missing_ok=True)  # a stale mask from an earlier run with other images
-        views.append(View(v.name, intr, v.cam_from_world, extra={"image_file": dst_name}))
+        views.append(View(v.name, intr, v.cam_from_world, image_file=dst_name))
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 
 
@@ -155,7 +157,8 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         check_sfm_masks(images, masks)
     out = prepare_output(out, overwrite, inputs=(images,) + ((run.depth,) if run.depth != "mvs" else ())
                          + ((masks,) if masks else ()))
-    stages = Stages(out / ".stages", force)
+    layout = Layout(out)
+    stages = Stages(layout.stages, force)
     warnings: list[str] = []
     handler = _WarningCollector(warnings)
     log.addHandler(handler)
@@ -163,10 +166,10 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         # 1. poses: OUT/images, OUT/sparse/0, OUT/transforms.json
         def poses() -> dict:
             if run.poses:
-                shutil.rmtree(out / "images", ignore_errors=True)  # no image left from an earlier SfM run
+                shutil.rmtree(layout.images, ignore_errors=True)  # no image left from an earlier SfM run
                 model = _undistort_given(read_model(run.poses), images, out, masks)
-                write_colmap_text(model, out / "sparse" / "0")
-                write_transforms(model.views, out / "transforms.json")
+                write_colmap_text(model, layout.sparse)
+                write_transforms(model.views, layout.transforms)
                 info = {"source": run.poses, "registered": len(model.views), "unregistered": []}
             else:
                 res = run_sfm(images, out, cfgs.sfm, force=force, masks=masks)
@@ -183,14 +186,14 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         stages.run("poses", {"images": fingerprint(images), "poses": run.poses and fingerprint(run.poses),
                              "sfm": sfm_inputs, "masks": masks and fingerprint(masks),
                              "scale": asdict(cfgs.scale)},
-                   poses, outputs=[out / "images", out / "sparse" / "0", out / "transforms.json", out / "masks"])
+                   poses, outputs=[layout.images, layout.sparse, layout.transforms, layout.masks])
         ds = Dataset.open(out)
 
         # 2. depth: OUT/depth
         source = "mono" if run.depth_model else "mvs" if run.depth == "mvs" else "folder"
 
         def depth() -> dict:
-            with atomic_dir(out / "depth") as tmp_depth:
+            with atomic_dir(layout.depth) as tmp_depth:
                 if source == "mono":
                     from .depth.mono import MonoConfig, run_mono
 
@@ -214,7 +217,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
             depth_inputs = asdict(cfgs.mvs)
         else:
             depth_inputs = fingerprint(run.depth)
-        stages.run("depth", {"source": source, "inputs": depth_inputs}, depth, outputs=[out / "depth"])
+        stages.run("depth", {"source": source, "inputs": depth_inputs}, depth, outputs=[layout.depth])
 
         # 3. fusion, cleaning, export: OUT/mesh.*; then OUT/preview.png
         fused = {}
@@ -223,18 +226,18 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
             frames = load_frames(ds, cfgs.fusion)
             mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean)
             for fmt in formats:
-                export(mesh, out / f"mesh.{fmt}")
+                export(mesh, layout.mesh(fmt))
             fused["mesh"] = mesh
             log.info("mesh: %d vertices, %d faces", len(mesh.vertices), len(mesh.faces))
             return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames)}
 
         def preview() -> None:
-            mesh = fused["mesh"] if "mesh" in fused else load_mesh(out / f"mesh.{formats[0]}")
-            render_preview(mesh, out / "preview.png", cameras=ds.views)
+            mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
+            render_preview(mesh, layout.preview, cameras=ds.views)
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
-                   fusion, outputs=[out / f"mesh.{fmt}" for fmt in formats])
-        stages.run("preview", {}, preview, outputs=[out / "preview.png"])
+                   fusion, outputs=[layout.mesh(fmt) for fmt in formats])
+        stages.run("preview", {}, preview, outputs=[layout.preview])
     finally:
         log.removeHandler(handler)
     report = {
@@ -245,7 +248,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         "mesh": stages.info.get("fusion", {}), "warnings": warnings,
         "units": stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"),
     }
-    atomic_write_json(out / "report.json", report)
+    atomic_write_json(layout.report_json, report)
     write_html_report(out, report)
     return report
 

@@ -21,6 +21,7 @@ is a no-op: a re-run never scales twice.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -30,8 +31,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .cameras import View, rigid
+from .cameras import rigid
 from .errors import BadArgumentError, InputDataError
+from .layout import Layout
 from .io.colmap_text import SparseModel
 
 log = logging.getLogger("photorecon")
@@ -90,7 +92,7 @@ def apply_similarity(model: SparseModel, s: float, R=None, t=None) -> SparseMode
     for v in model.views:
         Rc, tc = v.cam_from_world[:3, :3], v.cam_from_world[:3, 3]
         Rn = Rc @ R.T
-        views.append(View(v.name, v.intrinsics, rigid(Rn, s * tc - Rn @ t), v.image_path, dict(v.extra)))
+        views.append(dataclasses.replace(v, cam_from_world=rigid(Rn, s * tc - Rn @ t), extra=dict(v.extra)))
     points = s * np.asarray(model.points, float).reshape(-1, 3) @ R.T + t
     return SparseModel(views, points, model.colors, model.point_ids, model.errors, model.observations)
 
@@ -370,7 +372,7 @@ def _source_photos(model: SparseModel, folder: Path | None) -> list[Path | None]
             by_stem.setdefault(f.stem, f)
     out = []
     for v in model.views:
-        name = v.extra.get("image_file", v.name)
+        name = (v.image_file or v.name)
         out.append(folder / name if (folder / name).is_file() else by_stem.get(Path(name).stem, by_stem.get(v.name)))
     return out
 
@@ -389,14 +391,14 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
     cfg = cfg or ScaleConfig()
     if base_units not in UNITS:
         raise BadArgumentError(f"units: expected one of {UNITS}, got {base_units!r}")
-    out = Path(out)
-    if not (out / "sparse" / "0").is_dir():
-        raise InputDataError(f"{out}/sparse/0: no model to scale")
-    model = read_colmap_text(out / "sparse" / "0")
+    layout = Layout(out)
+    if not layout.sparse.is_dir():
+        raise InputDataError(f"{layout.sparse}: no model to scale")
+    model = read_colmap_text(layout.sparse)
     info: dict = {"units": base_units, "method": "given" if base_units == "metre" else None, "factor": 1.0}
     scaled = None
     if cfg.marker_size is not None:
-        res = marker_scale(model, {v.name: out / "images" / v.extra.get("image_file", v.name + ".png")
+        res = marker_scale(model, {v.name: layout.images / (v.image_file or v.name + ".png")
                                    for v in model.views}, cfg.marker_size, cfg.marker_dict)
         info["marker"] = {"size_m": cfg.marker_size, "dictionary": cfg.marker_dict, **res.as_dict()}
         if res.scale is None:
@@ -418,9 +420,9 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
             log.info("metric scale: aligned to east-north-up metres with %d GPS photos (RMS %.2f m)",
                      sim.photos, sim.rms_m)
     if scaled is not None:
-        write_colmap_text(scaled, out / "sparse" / "0")
+        write_colmap_text(scaled, layout.sparse)
         model = scaled
-    _record_transforms(model, out / "transforms.json", info["units"])
+    _record_transforms(model, layout.transforms, info["units"])
     return info
 
 
@@ -436,7 +438,7 @@ def _record_transforms(model: SparseModel, path: Path, units: str) -> None:
     except (OSError, ValueError):
         data = None
     frames = data.get("frames") if isinstance(data, dict) else None
-    by_file = {v.extra.get("image_file", v.name + ".png"): v for v in model.views}
+    by_file = {(v.image_file or v.name + ".png"): v for v in model.views}
     world = data.get("photorecon_world") if isinstance(data, dict) else None
     if (not isinstance(frames, list) or len(frames) != len(model.views) or world is None
             or any(not isinstance(f, dict) or Path(str(f.get("file_path", ""))).name not in by_file for f in frames)):

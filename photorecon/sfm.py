@@ -28,6 +28,7 @@ from .errors import BadArgumentError, InputDataError, SfMError
 from .io.atomic import atomic_path, atomic_write_json
 from .io.colmap import read_colmap_binary, sparse_from_pycolmap
 from .io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
+from .layout import Layout
 from .stages import Stages, atomic_dir, fingerprint, replace_dir
 
 log = logging.getLogger("photorecon")
@@ -240,10 +241,10 @@ def _undistort_masks(model_dir: Path, model: SparseModel, mask_dir: Path, out: P
 
     from .io.images import read_mask, write_image
 
-    distorted = {v.extra["image_file"]: v.intrinsics for v in read_colmap_binary(model_dir).views}
+    distorted = {v.image_file: v.intrinsics for v in read_colmap_binary(model_dir).views}
     n = 0
     for v in model.views:
-        name = v.extra["image_file"]
+        name = v.image_file
         src = mask_dir / f"{name}.png"
         if not src.is_file() or name not in distorted:
             continue
@@ -264,17 +265,18 @@ def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mas
     ``out/sparse/0`` and ``out/transforms.json``, where metric scaling may rewrite it: the stage's own copy
     stays unscaled, so scaling never compounds and never invalidates this stage."""
     pycolmap = _pycolmap()
+    layout = Layout(out)
     with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
         pycolmap.undistort_images(und, str(model_dir), str(images_dir))
         model = sparse_from_pycolmap(pycolmap.Reconstruction(f"{und}/sparse"))
         masks = Path(und) / "masks"
         masks.mkdir()
         n_masks = _undistort_masks(model_dir, model, mask_dir, masks) if mask_dir is not None else 0
-        replace_dir(f"{und}/images", out / "images")
+        replace_dir(f"{und}/images", layout.images)
         if n_masks:
-            replace_dir(masks, out / "masks")
+            replace_dir(masks, layout.masks)
         else:
-            shutil.rmtree(out / "masks", ignore_errors=True)
+            shutil.rmtree(layout.masks, ignore_errors=True)
     with atomic_dir(model_out) as tmp:
         write_colmap_text(model, tmp)
     return model_out
@@ -285,9 +287,10 @@ def publish(model_dir: Path, out: Path) -> SparseModel:
     from .io.nerf import write_transforms
 
     model = read_colmap_text(model_dir)
-    with atomic_dir(out / "sparse" / "0") as tmp:
+    layout = Layout(out)
+    with atomic_dir(layout.sparse) as tmp:
         write_colmap_text(model, tmp)
-    write_transforms(model.views, out / "transforms.json", world="none")
+    write_transforms(model.views, layout.transforms, world="none")
     return model
 
 
@@ -322,7 +325,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     masks = Path(masks) if masks else None
     if masks is not None:
         check_sfm_masks(src, masks)
-    work = out / "colmap"
+    layout = Layout(out)
+    work = layout.colmap  # COLMAP's working files, laid out as sfm's stages want them
     stages = Stages(work / ".stages", force)
 
     ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None}
@@ -371,7 +375,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     undistorted = work / "undistorted"
     stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out, undistorted,
                                                      work_masks if ext.get("masks") else None),
-               outputs=[out / "images", undistorted, out / "masks"])
+               outputs=[layout.images, undistorted, layout.masks])
     model = publish(undistorted, out)
     secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,

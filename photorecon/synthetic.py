@@ -31,6 +31,7 @@ from .io.colmap_text import SparseModel, write_colmap_text
 from .io.images import write_depth, write_image
 from .io.nerf import write_transforms
 from .io.output import prepare_output
+from .layout import Layout
 from .mesh import export, load_mesh
 from .progress import bar
 from .render import Renderer, SolidNoise
@@ -162,7 +163,7 @@ def make_views(cfg: SynthConfig) -> list[View]:
             J = np.eye(4)
             J[:3, :3] = Rotation.from_rotvec(rng.normal(size=3) * np.radians(cfg.jitter_deg) / np.sqrt(3)).as_matrix()
             T = J @ T
-        views.append(View(f"view_{i:03d}", intr, T, extra={"image_file": f"view_{i:03d}.png"}))
+        views.append(View(f"view_{i:03d}", intr, T, image_file=f"view_{i:03d}.png"))
     return views
 
 
@@ -190,26 +191,27 @@ def synthesize(cfg: SynthConfig, out: str | Path, overwrite: bool = False) -> Sy
     views = make_views(cfg)
     renderer = Renderer(mesh, cfg.seed, cfg.background)
     out = prepare_output(out, overwrite, inputs=(cfg.mesh,) if cfg.mesh else ())
-    for d in ("images", "depth", "masks", "sparse/0"):
-        (out / d).mkdir(parents=True, exist_ok=True)
+    layout = Layout(out)
+    for d in (layout.images, layout.depth, layout.masks, layout.sparse):
+        d.mkdir(parents=True, exist_ok=True)
     t_render = 0.0
     for view in bar(views, desc="render"):
         t0 = time.perf_counter()
         r = renderer.render(view)
         t_render += time.perf_counter() - t0
-        write_image(out / "images" / f"{view.name}.png", r.rgb)
-        write_depth(out / "depth", view.name, r.depth)
-        write_image(out / "masks" / f"{view.name}.png", (r.mask * 255).astype(np.uint8))
+        write_image(layout.image(f"{view.name}.png"), r.rgb)
+        write_depth(layout.depth, view.name, r.depth)
+        write_image(layout.mask(view.name), (r.mask * 255).astype(np.uint8))
     sparse = sparse_model_from_surface(renderer, views, cfg.points, cfg.seed)
-    write_colmap_text(sparse, out / "sparse" / "0")
-    write_transforms(views, out / "transforms.json", world="none", depth_dir="depth", mask_dir="masks")
-    export(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), out / "gt_mesh.ply")
+    write_colmap_text(sparse, layout.sparse)
+    write_transforms(views, layout.transforms, world="none", depth_dir=layout.depth.name, mask_dir=layout.masks.name)
+    export(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), layout.gt_mesh)
     info = {"source": source, "normalization": {"center": center.tolist(), "scale": scale,
                                                 "formula": "world = (input - center) / scale"},
             "config": asdict(cfg), "appearance": renderer.appearance.kind,
             "bbox_diagonal": float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0])),
             "render_seconds_per_view": t_render / len(views)}
-    atomic_write_json(out / "scene.json", info)
+    atomic_write_json(layout.scene, info)
     log.info("synth: %d views of %s (%s texture) written to %s", len(views), source, renderer.appearance.kind, out)
     return SynthResult(out, views, mesh, t_render / len(views))
 

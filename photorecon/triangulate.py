@@ -65,11 +65,11 @@ class TriangulateStats:
 
 
 def find_image(images_dir: Path, view: View) -> Path:
-    """The image file of ``view``: ``view.image_path`` if it exists, else ``images_dir/<image_file extra>``,
+    """The image file of ``view``: ``view.image_path`` if it exists, else ``images_dir/<view.image_file>``,
     else ``images_dir/<name>.<any image suffix>``. Raises ``InputDataError`` naming the view when none exists."""
     if view.image_path and Path(view.image_path).is_file():
         return Path(view.image_path)
-    name = view.extra.get("image_file", view.name)
+    name = view.image_file or view.name
     p = images_dir / name
     if p.is_file():
         return p
@@ -218,7 +218,7 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     Args:
         images_dir: folder holding the images (8/16-bit RGB, grey, grey+alpha or RGBA; alpha 0 = no
             features). Each view's image is ``view.image_path`` if that file exists, else
-            ``images_dir / view.extra["image_file"]``, else ``images_dir / (view.name + <image suffix>)``.
+            ``images_dir / view.image_file``, else ``images_dir / (view.name + <image suffix>)``.
             Only read, never written.
         model: the cameras (any COLMAP camera model photorecon supports, one camera per view is fine).
             Its points, if any, are ignored and replaced.

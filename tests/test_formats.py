@@ -39,7 +39,7 @@ def _random_views(n, seed=0, w=40, h=30):
     for i in range(n):
         eye = rng.normal(size=3)
         eye = 4 * eye / np.linalg.norm(eye)
-        views.append(View(f"{i:03d}", intr, look_at(eye, rng.normal(size=3) * 0.1), extra={"image_file": f"{i:03d}.png"}))
+        views.append(View(f"{i:03d}", intr, look_at(eye, rng.normal(size=3) * 0.1), image_file=f"{i:03d}.png"))
     return views
 
 
@@ -80,7 +80,7 @@ def test_blender_camera_angle_y_and_folder_of_splits(tmp_path):
     model = read_model(tmp_path)
     assert [w.name for w in model.views] == ["train_r_0", "test_r_0"]  # every split has its own r_0
     assert model.views[1].image_path.endswith("test/r_0.png")
-    assert [w.extra["image_file"] for w in model.views] == ["train/r_0.png", "test/r_0.png"]
+    assert [w.image_file for w in model.views] == ["train/r_0.png", "test/r_0.png"]
 
 
 def test_blender_alpha_is_the_mask(tmp_path):

@@ -68,7 +68,7 @@ def _marker_scene(n_views: int = 6, world_scale: float = 1.0):
         images.append(np.repeat(img[:, :, None], 3, axis=2))
         T = T.copy()
         T[:3, 3] *= world_scale
-        views.append(View(f"v{i:02d}", intr, T, extra={"image_file": f"v{i:02d}.png"}))
+        views.append(View(f"v{i:02d}", intr, T, image_file=f"v{i:02d}.png"))
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(-0.3, 0.3, (50, 2)), np.zeros(50)] * world_scale
     return SparseModel(views, pts, np.full((50, 3), 200, np.uint8), np.arange(1, 51)), images
@@ -77,7 +77,7 @@ def _marker_scene(n_views: int = 6, world_scale: float = 1.0):
 def _write_images(tmp_path, model, images):
     paths = []
     for v, img in zip(model.views, images):
-        p = tmp_path / v.extra["image_file"]
+        p = tmp_path / v.image_file
         write_image(p, img)
         paths.append(p)
     return paths

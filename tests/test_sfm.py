@@ -36,7 +36,7 @@ def test_sfm_registers_all_and_matches_truth(ring16, tmp_path):
         np.testing.assert_allclose(a.cam_from_world, b.cam_from_world, atol=1e-9)
     # undistorted images exist for every registered view and match their cameras
     for v in est.views:
-        img = cv2.imread(str(out / "images" / v.extra["image_file"]))
+        img = cv2.imread(str(out / "images" / v.image_file))
         assert img.shape[:2] == (v.intrinsics.height, v.intrinsics.width)
     assert tree_hash(ring16 / "images") == before
     # a re-run reuses every stage

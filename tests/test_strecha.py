@@ -33,7 +33,7 @@ def test_strecha_camera_projects_like_P_by_hand(tmp_path):
     path = tmp_path / "0007.jpg.camera"
     path.write_text(_camera_text(R, C))
     view = read_strecha_camera(path)
-    assert view.name == "0007" and view.extra["image_file"] == "0007.jpg"
+    assert view.name == "0007" and view.image_file == "0007.jpg"
     assert view.intrinsics.size == (WIDTH, HEIGHT)
     np.testing.assert_allclose(view.center, C, atol=1e-12)
     # P = K [Rᵀ | −Rᵀ C], homogeneous division, pixel (0,0) = centre of the top-left pixel in both

@@ -159,3 +159,21 @@ def test_cli_synth_and_errors(tmp_path):
     (tmp_path / "foreign" / "notes.txt").write_text("mine")
     assert main(["-q", "synth", "-o", str(tmp_path / "foreign"), "--views", "1"]) == 8
     assert (tmp_path / "foreign" / "notes.txt").read_text() == "mine"
+
+
+def test_layout_names_every_file_synth_writes(tmp_path):
+    """The one Layout object and the files a dataset holds agree: every file synth wrote is a path the Layout
+    names (nothing written under a hand-made path), and the Dataset reader finds a view's files through it."""
+    from photorecon.io.dataset import Dataset
+    from photorecon.layout import Layout
+
+    root = synthesize(SynthConfig(scene="blob", views=3, width=48, height=36, points=50), tmp_path / "d").root
+    lay = Layout(root)
+    ds = Dataset.open(root)
+    named = {lay.transforms, lay.gt_mesh, lay.scene, *(lay.sparse / f for f in ("cameras.txt", "images.txt", "points3D.txt"))}
+    for v in ds.views:
+        assert ds.image_path(v) == lay.image(v.image_file) and ds.depth_path(v) == lay.depth_map(v.name)
+        assert ds.mask_path(v) == lay.mask(v.name)
+        named |= {lay.image(v.image_file), lay.depth_map(v.name), lay.mask(v.name), lay.depth / f"{v.name}.png"}
+    written = {p for p in root.rglob("*") if p.is_file() and p.name != ".photorecon"}
+    assert written == named

@@ -81,7 +81,7 @@ def test_triangulate_given_grey_alpha_images_and_overlap_pairs(ring16, tmp_path)
     images.mkdir()
     given = _bare(read_model(ring16))
     for v in given.views:
-        rgb = cv2.imread(str(ring16 / "images" / v.extra["image_file"]), cv2.IMREAD_COLOR)
+        rgb = cv2.imread(str(ring16 / "images" / v.image_file), cv2.IMREAD_COLOR)
         grey = cv2.cvtColor(rgb, cv2.COLOR_BGR2GRAY)
         alpha = np.full_like(grey, 255)
         alpha[:, :8] = 0

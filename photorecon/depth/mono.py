@@ -195,7 +195,7 @@ def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None,
     few SfM points or a bad fit are excluded and reported. Raises ``NoDepthError`` if none is left."""
     cfg = cfg or MonoConfig()
     net = MonoModel(model_path, cfg)
-    out = Path(out_dir) if out_dir else dataset.root / "depth"
+    out = Path(out_dir) if out_dir else dataset.layout.depth
     out.mkdir(parents=True, exist_ok=True)
     model = dataset.model
     preds, samples = {}, {}

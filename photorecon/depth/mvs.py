@@ -22,6 +22,7 @@ Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -103,7 +104,7 @@ def _working_view(view: View, max_size: int) -> View:
     if s >= 1.0:
         return view
     intr = view.intrinsics.scaled(int(round(W * s)), int(round(H * s)))
-    return View(view.name, intr, view.cam_from_world, view.image_path, dict(view.extra))
+    return dataclasses.replace(view, intrinsics=intr, extra=dict(view.extra))
 
 
 def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
@@ -308,7 +309,7 @@ def _triangulated(dataset):
     from ..triangulate import triangulate_given
 
     with tempfile.TemporaryDirectory(prefix="photorecon_tri_") as work:
-        model = triangulate_given(dataset.root / "images", dataset.model, work)
+        model = triangulate_given(dataset.layout.images, dataset.model, work)
     if len(model.points):
         log.info("mvs: %d sparse points triangulated with the given cameras", len(model.points))
     return model
@@ -321,7 +322,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     yields depth."""
     cfg = cfg or MVSConfig()
     model = dataset.model
-    out = Path(out_dir) if out_dir else dataset.root / "depth"
+    out = Path(out_dir) if out_dir else dataset.layout.depth
     out.mkdir(parents=True, exist_ok=True)
     grey: dict[str, np.ndarray] = {}
     work: dict[str, View] = {}

@@ -21,6 +21,7 @@ filters them (confidence, geometric consistency between views) and writes them.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import tempfile
 import time
@@ -56,7 +57,7 @@ def level_view(view: View, level: int) -> View:
     W, H = view.intrinsics.size
     f = 0.5 ** level
     intr = view.intrinsics.scaled(max(8, int(round(W * f))), max(8, int(round(H * f))))
-    return View(view.name, intr, view.cam_from_world, view.image_path, view.extra)
+    return dataclasses.replace(view, intrinsics=intr)
 
 
 def _kernels():

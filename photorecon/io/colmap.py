@@ -31,7 +31,7 @@ def sparse_from_pycolmap(rec) -> SparseModel:
         M = np.eye(4)
         M[:3] = image.cam_from_world().matrix()
         stem = Path(image.name).stem
-        views.append(View(stem, intr, M, extra={"image_file": image.name, "colmap_image_id": int(image_id)}))
+        views.append(View(stem, intr, M, image_file=image.name, extra={"colmap_image_id": int(image_id)}))
         pts = image.points2D
         xy = opencv_from_colmap_pixels(np.array([p.xy for p in pts], float).reshape(-1, 2))
         ids = np.array([p.point3D_id if p.has_point3D() else -1 for p in pts], np.int64)

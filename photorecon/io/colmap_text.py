@@ -47,7 +47,7 @@ class SparseModel:
 
 
 def _image_key(view: View) -> str:
-    return view.extra.get("image_file", view.name)
+    return view.image_file or view.name
 
 
 def _cam_key(view: View) -> tuple:
@@ -138,7 +138,7 @@ def read_colmap_text(folder: str | Path) -> SparseModel:
         except (ValueError, IndexError, KeyError) as exc:
             raise InputDataError(f"{path}: cannot parse image entry {ln!r}: {exc!r}") from None
         stem = Path(name).stem
-        views.append(View(stem, intr, T, extra={"image_file": name, "colmap_image_id": int(tok[0]),
+        views.append(View(stem, intr, T, image_file=name, extra={"colmap_image_id": int(tok[0]),
                                                  "colmap_camera_id": cam_id}))
         obs[stem] = (opencv_from_colmap_pixels(arr[:, :2]), arr[:, 2].astype(np.int64))
     path = folder / "points3D.txt"

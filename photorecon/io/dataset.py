@@ -12,6 +12,7 @@ import numpy as np
 
 from ..cameras import View
 from ..errors import InputDataError
+from ..layout import Layout
 from .colmap_text import SparseModel, read_colmap_text
 from .images import mask_file, match_masks, read_alpha, read_depth, read_image, read_mask
 from .formats import NEUS_FILES, read_llff, read_neus
@@ -75,7 +76,11 @@ class Dataset:
 
     def __post_init__(self):
         if self.masks_dir is None:
-            self.masks_dir = self.root / "masks"
+            self.masks_dir = self.layout.masks
+
+    @property
+    def layout(self) -> Layout:
+        return Layout(self.root)
 
     @classmethod
     def open(cls, root: str | Path, depth_dir: str | Path | None = None,
@@ -89,7 +94,7 @@ class Dataset:
         model = read_model(root)
         if not model.views:
             raise InputDataError(f"{root}: the camera model has no images")
-        ds = cls(root, model, Path(depth_dir) if depth_dir else root / "depth", Path(masks_dir) if masks_dir else None)
+        ds = cls(root, model, Path(depth_dir) if depth_dir else Layout(root).depth, Path(masks_dir) if masks_dir else None)
         if masks_dir:
             match_masks(masks_dir, {ds._image_name(v): v.intrinsics.size for v in ds.views})
         return ds
@@ -101,12 +106,12 @@ class Dataset:
     def image_path(self, view: View) -> Path:
         if view.image_path:
             return Path(view.image_path)
-        name = view.extra.get("image_file", view.name)
-        p = self.root / "images" / name
+        name = view.image_file or view.name
+        p = self.layout.images / name
         if p.is_file():
             return p
         for suf in IMAGE_SUFFIXES:
-            q = self.root / "images" / (view.name + suf)
+            q = self.layout.images / (view.name + suf)
             if q.is_file():
                 return q
         return p
@@ -122,8 +127,8 @@ class Dataset:
         """DEPTH_DIR/NAME.npy, else (when the depth folder is the default one) the frame's ``depth_file_path``
         from a transforms.json (confined to its folder)."""
         p = self.depth_dir / f"{view.name}.npy"
-        if not p.is_file() and "depth_file_path" in view.extra and self.depth_dir == self.root / "depth":
-            return Path(view.extra["depth_file_path"])
+        if not p.is_file() and view.depth_file and self.depth_dir == self.layout.depth:
+            return Path(view.depth_file)
         return p
 
     def depth(self, view: View) -> np.ndarray:
@@ -148,14 +153,14 @@ class Dataset:
 
     def _image_name(self, view: View) -> str:
         """The view's image file name (NAME.EXT), what a COLMAP-style mask NAME.EXT.png is named after."""
-        return Path(view.image_path).name if view.image_path else Path(view.extra.get("image_file", view.name)).name
+        return Path(view.image_path).name if view.image_path else Path(view.image_file or view.name).name
 
     def mask_path(self, view: View) -> Path | None:
         """The mask file of ``view``: in the masks folder NAME.EXT.png or NAME.png; with the default folder,
         a transforms.json frame's ``mask_path`` comes first. None when there is none."""
-        default = self.masks_dir == self.root / "masks"
-        if default and "mask_path" in view.extra and Path(view.extra["mask_path"]).is_file():
-            return Path(view.extra["mask_path"])
+        default = self.masks_dir == self.layout.masks
+        if default and view.mask_file and Path(view.mask_file).is_file():
+            return Path(view.mask_file)
         p = mask_file(self.masks_dir, self._image_name(view))
         if p is None and (self.masks_dir / f"{view.name}.png").is_file():  # a view named apart from its file
             p = self.masks_dir / f"{view.name}.png"

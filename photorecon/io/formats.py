@@ -127,20 +127,19 @@ def read_neus(path: str | Path, world: str = "normalized") -> list[View]:
             intr = Intrinsics(w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
         except BadArgumentError as exc:
             raise InputDataError(f"{path} camera {i}: {exc}") from None
-        extra = {"image_file": img.name, "neus_index": i}
+        extra = {"neus_index": i}
         if abs(K[0, 1]) > 0:
             extra["skew"] = float(K[0, 1])
             shift = abs(K[0, 1]) * (h / 2) / K[1, 1]
             if shift > 0.01:
                 log.warning("%s camera %d: skew %.3g dropped (moves pixels by up to %.2f px)", path, i, K[0, 1], shift)
-        if len(masks) == n:
-            extra["mask_path"] = str(masks[i])
-        views.append(View(img.stem, intr, T, image_path=str(img), extra=extra))
+        mask_file = str(masks[i]) if len(masks) == n else None
+        views.append(View(img.stem, intr, T, image_path=str(img), extra=extra, image_file=img.name, mask_file=mask_file))
     return views
 
 
 def _file_order(views: list[View]) -> list[View]:
-    return sorted(views, key=lambda v: v.extra.get("image_file", v.name))
+    return sorted(views, key=lambda v: v.image_file or v.name)
 
 
 def neus_scale_mat(points: np.ndarray, margin: float = 1.1) -> np.ndarray:
@@ -228,7 +227,7 @@ def read_llff(path: str | Path) -> list[View]:
                 raise InputDataError(f"{where}: image {img} is {w}x{h}, not a resize of the file's {W}x{H}")
             intr = intr.scaled(w, h)
         views.append(View(img.stem, intr, T, image_path=str(img),
-                          extra={"image_file": img.name, "near": float(row[15]), "far": float(row[16])}))
+                          image_file=img.name, extra={"near": float(row[15]), "far": float(row[16])}))
     return views
 
 

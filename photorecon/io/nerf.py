@@ -16,6 +16,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -65,7 +66,7 @@ def write_transforms(views: list[View], path: str | Path, world: str = "none", i
         out["applied_transform"] = world_T[:3].tolist()
     frames = []
     for v in views:
-        image_file = v.extra.get("image_file", v.name + image_ext)
+        image_file = v.image_file or v.name + image_ext
         fr = {"file_path": f"{image_dir}/{image_file}" if image_dir else image_file,
               "transform_matrix": nerf_from_opencv(v.cam_from_world, world).tolist()}
         if not shared:
@@ -170,18 +171,17 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputDataError(f"{where}: {exc}") from None
         img = _image_file(confined(root, file_path, where))
-        extra = {"image_file": img.name}
-        for key in ("depth_file_path", "mask_path"):
-            if key in fr:
-                extra[key] = str(confined(root, str(fr[key]), where))
-        views.append(View(img.stem, intr, T, image_path=str(img), extra=extra))
+        files = {key: str(confined(root, str(fr[key]), where)) if key in fr else None
+                 for key in ("depth_file_path", "mask_path")}
+        views.append(View(img.stem, intr, T, image_path=str(img), image_file=img.name,
+                          depth_file=files["depth_file_path"], mask_file=files["mask_path"]))
     return views
 
 
 def read_blender(path: str | Path) -> list[View]:
     """Views of the NeRF Blender-synthetic layout: one ``transforms_SPLIT.json`` file, or a folder holding
     ``transforms_train.json`` / ``transforms_val.json`` / ``transforms_test.json`` (all splits present, in that
-    order; view names get a ``SPLIT_`` prefix and ``extra["image_file"]`` the split folder, ``train/r_0.png``,
+    order; view names get a ``SPLIT_`` prefix and ``image_file`` the split folder, ``train/r_0.png``,
     since every split has its own ``r_0``: ``reconstruct SCENE/ --poses SCENE/`` pairs the right images)."""
     path = Path(path)
     if path.is_file():
@@ -194,8 +194,7 @@ def read_blender(path: str | Path) -> list[View]:
         for v in read_transforms(f):
             if len(files) > 1:
                 rel = Path(v.image_path).resolve().relative_to(path.resolve()).as_posix()
-                v = View(f"{split}_{v.name}", v.intrinsics, v.cam_from_world, image_path=v.image_path,
-                         extra={**v.extra, "image_file": rel})
+                v = dataclasses.replace(v, name=f"{split}_{v.name}", image_file=rel)
             views.append(v)
     return views
 
@@ -231,6 +230,6 @@ def write_blender(views: list[View], path: str | Path, tol_px: float = 0.5) -> P
     if abs(intr.fx - intr.fy) > 1e-9 * intr.fx:
         out["camera_angle_y"] = 2 * math.atan(0.5 * H / intr.fy)
     out["photorecon_world"] = "none"
-    out["frames"] = [{"file_path": f"./{split}/{Path(v.extra.get('image_file', v.name)).stem}",
+    out["frames"] = [{"file_path": f"./{split}/{Path(v.image_file or v.name).stem}",
                       "transform_matrix": nerf_from_opencv(v.cam_from_world, "none").tolist()} for v in views]
     return atomic_write_json(path, out)

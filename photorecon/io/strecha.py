@@ -35,7 +35,7 @@ def _nearest_rotation(R: np.ndarray) -> np.ndarray:
 
 def read_strecha_camera(path: str | Path) -> View:
     """One ``NAME.camera`` file -> ``View`` named after the image stem (``0000.jpg.camera`` -> ``0000``,
-    ``extra["image_file"] = "0000.jpg"``). Raises ``InputDataError`` naming the file on malformed content."""
+    ``image_file = "0000.jpg"``). Raises ``InputDataError`` naming the file on malformed content."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -73,7 +73,7 @@ def read_strecha_camera(path: str | Path) -> View:
     R = _nearest_rotation(R)
     cam_from_world = rigid(R.T, -R.T @ C)
     image_file = path.name[: -len(CAMERA_SUFFIX)] if path.name.endswith(CAMERA_SUFFIX) else path.name
-    return View(Path(image_file).stem, intr, cam_from_world, extra={"image_file": image_file})
+    return View(Path(image_file).stem, intr, cam_from_world, image_file=image_file)
 
 
 def read_strecha(folder: str | Path) -> SparseModel:

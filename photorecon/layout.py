@@ -1,0 +1,100 @@
+"""The one object that knows every path of a dataset / output folder.
+
+A dataset (written by ``synth``, read by ``mvs``, ``depth``, ``fuse``) and the output of ``reconstruct`` share
+one layout; ``reconstruct`` adds the mesh, its previews and reports, and its working folders::
+
+    ROOT/images/NAME.png        images (undistorted, for an output)
+    ROOT/depth/NAME.npy         float32 z-depth (+ NAME.conf.npy, NAME.normal.npy, NAME.png preview)
+    ROOT/masks/NAME.png         255 = use the pixel
+    ROOT/sparse/0/              COLMAP text model
+    ROOT/transforms.json        the same cameras, NeRF convention
+    ROOT/gt_mesh.ply            ground truth (synthetic datasets)
+    ROOT/scene.json             synthetic scene settings and normalisation
+    ROOT/mesh.{ply,obj,glb}     the fused, cleaned mesh
+    ROOT/preview.png            the mesh from four viewpoints
+    ROOT/report.json, report.html
+    ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
+    ROOT/.stages/               the pipeline's stage markers
+
+Paths only: a ``Layout`` creates, reads and checks nothing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Layout:
+    root: Path
+
+    def __init__(self, root: str | Path):
+        object.__setattr__(self, "root", Path(root))
+
+    # --- folders ------------------------------------------------------------------------------------------
+    @property
+    def images(self) -> Path:
+        return self.root / "images"
+
+    @property
+    def depth(self) -> Path:
+        return self.root / "depth"
+
+    @property
+    def masks(self) -> Path:
+        return self.root / "masks"
+
+    @property
+    def sparse(self) -> Path:
+        """The COLMAP model folder, ``sparse/0``."""
+        return self.root / "sparse" / "0"
+
+    @property
+    def colmap(self) -> Path:
+        """SfM working folder (database, distorted model, ingested images); reused on a re-run."""
+        return self.root / "colmap"
+
+    @property
+    def stages(self) -> Path:
+        return self.root / ".stages"
+
+    # --- files --------------------------------------------------------------------------------------------
+    @property
+    def transforms(self) -> Path:
+        return self.root / "transforms.json"
+
+    @property
+    def gt_mesh(self) -> Path:
+        return self.root / "gt_mesh.ply"
+
+    @property
+    def scene(self) -> Path:
+        return self.root / "scene.json"
+
+    @property
+    def preview(self) -> Path:
+        return self.root / "preview.png"
+
+    @property
+    def report_json(self) -> Path:
+        return self.root / "report.json"
+
+    @property
+    def report_html(self) -> Path:
+        return self.root / "report.html"
+
+    def mesh(self, fmt: str = "ply") -> Path:
+        """``mesh.ply``, ``mesh.obj`` or ``mesh.glb``."""
+        return self.root / f"mesh.{fmt}"
+
+    def depth_map(self, name: str) -> Path:
+        """``depth/NAME.npy`` (z-depth of view ``name``)."""
+        return self.depth / f"{name}.npy"
+
+    def image(self, file: str) -> Path:
+        """``images/FILE`` (FILE with its extension, e.g. a view's ``image_file``)."""
+        return self.images / file
+
+    def mask(self, name: str) -> Path:
+        """``masks/NAME.png``."""
+        return self.masks / f"{name}.png"
