@@ -148,8 +148,10 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     formats = parse_formats(run.formats)
     if run.depth != "mvs" and not Path(run.depth).is_dir():
         raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
-    if run.depth_model and not Path(run.depth_model).is_file():
-        raise BadArgumentError(f"--depth-model: {run.depth_model}: no such file")
+    if run.depth_model:
+        from .depth.mono import check_model_file
+
+        check_model_file(run.depth_model)
     masks = Path(run.masks) if run.masks else None
     if masks is not None:  # before anything is written
         from .sfm import check_sfm_masks

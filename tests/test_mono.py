@@ -109,6 +109,12 @@ def test_wrong_models(tmp_path, blob_small):
         nan.predict([np.zeros((32, 32, 3), np.uint8)], ["view_000"])
     rc = main(["-q", "depth", str(blob_small), "--model", str(tmp_path / "junk.onnx"), "-o", str(tmp_path / "o")])
     assert rc == 3
+    # a missing model is one failure class wherever it is found: the same exit from reconstruct (which checks
+    # before writing anything) as from depth
+    rc = main(["-q", "reconstruct", str(blob_small / "images"), "-o", str(tmp_path / "r"),
+               "--depth-model", str(tmp_path / "missing.onnx")])
+    assert rc == 3 and not (tmp_path / "r").exists()
+    assert main(["-q", "depth", str(blob_small), "--model", str(tmp_path / "missing.onnx"), "-o", str(tmp_path / "o2")]) == 3
 
 
 def test_reconstruct_with_depth_model(oracle_dataset, tmp_path):

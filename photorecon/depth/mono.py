@@ -74,17 +74,25 @@ class MonoConfig:
         return p
 
 
+def check_model_file(path: str | Path) -> Path:
+    """The ONNX model file ``path``, or ``InputDataError`` naming it: the one check of a model path, run by
+    the pipeline before anything is written and by the model loader."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputDataError(f"depth model {path}: no such file; export the model to ONNX first (README: "
+                             "Monocular depth models)")
+    return path
+
+
 class MonoModel:
     """An ONNX depth model on onnxruntime: input layout and size read from the model."""
 
     def __init__(self, path: str | Path, cfg: MonoConfig | None = None):
         import onnxruntime as ort
 
-        self.path = Path(path)
+        self.path = check_model_file(path)
         self.cfg = cfg or MonoConfig()
         self.pre = self.cfg.resolved()
-        if not self.path.is_file():
-            raise InputDataError(f"model {self.path}: no such file")
         so = ort.SessionOptions()
         so.intra_op_num_threads = max(1, int(self.cfg.threads))
         so.log_severity_level = 3
