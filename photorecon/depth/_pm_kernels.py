@@ -193,37 +193,47 @@ def _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
     return True
 
 
-@njit(cache=True)
-def _geo(j, X0, X1, X2, x, y, R, t, Kd, sdepth, Kr, delta):
-    """Forward-backward reprojection error (reference pixels, capped at ``delta``) of the 3D point X (reference
-    camera frame) through source ``j``'s depth map (intrinsics ``Kd[j]``), as in ACMM."""
+@njit(cache=True, inline="always")
+def _geo_rays(GP, r0, r1, r2, gq):
+    """q[j] = Kd_j R_j ray: the reference pixel's ray in source ``j``'s depth-map pixels (homogeneous), once per
+    pixel; a hypothesis at depth d then projects to d q[j] + Ge[j]."""
+    for j in range(GP.shape[0]):
+        for k in range(3):
+            q[j, k] = GP[j, k, 0] * r0 + GP[j, k, 1] * r1 + GP[j, k, 2] * r2
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _geo(j, d, q, Ge, GM, Gg, sdepth, x, y, delta):
+    """Forward-backward reprojection error (reference pixels, capped at ``delta``) of the point at depth ``d``
+    on the pixel's ray through source ``j``'s depth map, as in ACMM. With Kd, R, t (source depth map's
+    intrinsics, source from reference) and Kr: forward p = d q[j] + Ge[j] (Ge = Kd t), the source pixel
+    (u, v) = p / p_2; backward, with the source's depth ds at the nearest pixel, the reference pixel of
+    ds / p_2 GM[j] p - Gg[j] (GM = Kr R^T Kd^-1, Gg = Kr R^T t)."""
     hs, ws = sdepth.shape[1], sdepth.shape[2]
-    Y0 = R[j, 0, 0] * X0 + R[j, 0, 1] * X1 + R[j, 0, 2] * X2 + t[j, 0]
-    Y1 = R[j, 1, 0] * X0 + R[j, 1, 1] * X1 + R[j, 1, 2] * X2 + t[j, 1]
-    Y2 = R[j, 2, 0] * X0 + R[j, 2, 1] * X1 + R[j, 2, 2] * X2 + t[j, 2]
-    if Y2 <= 1e-12:
+    p0 = d * q[j, 0] + Ge[j, 0]
+    p1 = d * q[j, 1] + Ge[j, 1]
+    p2 = d * q[j, 2] + Ge[j, 2]
+    if p2 <= 1e-12:
         return delta
-    u = Kd[j, 0, 0] * Y0 / Y2 + Kd[j, 0, 2]
-    v = Kd[j, 1, 1] * Y1 / Y2 + Kd[j, 1, 2]
-    iu = int(u + 0.5)
-    iv = int(v + 0.5)
-    if iu < 0 or iv < 0 or iu >= ws or iv >= hs:
+    u = p0 / p2
+    v = p1 / p2
+    if not (u > -0.5 and v > -0.5 and u < ws - 0.5 and v < hs - 0.5):
         return delta
-    ds = sdepth[j, iv, iu]
+    ds = sdepth[j, int(v + 0.5), int(u + 0.5)]
     if ds <= 0.0:
         return delta
-    Z0 = (u - Kd[j, 0, 2]) / Kd[j, 0, 0] * ds - t[j, 0]
-    Z1 = (v - Kd[j, 1, 2]) / Kd[j, 1, 1] * ds - t[j, 1]
-    Z2 = ds - t[j, 2]
-    B0 = R[j, 0, 0] * Z0 + R[j, 1, 0] * Z1 + R[j, 2, 0] * Z2  # R^T (Z - t)
-    B1 = R[j, 0, 1] * Z0 + R[j, 1, 1] * Z1 + R[j, 2, 1] * Z2
-    B2 = R[j, 0, 2] * Z0 + R[j, 1, 2] * Z1 + R[j, 2, 2] * Z2
+    s = ds / p2
+    B2 = s * (GM[j, 2, 0] * p0 + GM[j, 2, 1] * p1 + GM[j, 2, 2] * p2) - Gg[j, 2]
     if B2 <= 1e-12:
         return delta
-    pu = Kr[0, 0] * B0 / B2 + Kr[0, 2]
-    pv = Kr[1, 1] * B1 / B2 + Kr[1, 2]
-    e = math.sqrt((pu - x) * (pu - x) + (pv - y) * (pv - y))
-    return e if e < delta else delta
+    B0 = s * (GM[j, 0, 0] * p0 + GM[j, 0, 1] * p1 + GM[j, 0, 2] * p2) - Gg[j, 0]
+    B1 = s * (GM[j, 1, 0] * p0 + GM[j, 1, 1] * p1 + GM[j, 1, 2] * p2) - Gg[j, 1]
+    eu = B0 / B2 - x
+    ev = B1 / B2 - y
+    e2 = eu * eu + ev * ev
+    if e2 >= delta * delta:
+        return delta
+    return math.sqrt(e2)
 
 
 @njit(cache=True)
@@ -309,7 +319,7 @@ def upsample_planes(depth_c, normal_c, Kinv_c, Kinv_f, depth_f, normal_f):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, delta_geo,
+def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo, delta_geo,
                  sdy, sdx, sspat, sigma_c, min_var, best_k, depth, normal, cost):
     """Cost of each pixel's current hypothesis: the mean of its ``best_k`` lowest source costs (photometric
     plus ``lam_geo`` x the geometric term when ``use_geo``)."""
@@ -325,6 +335,7 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
         h = np.empty(9, np.float64)
         m = np.empty(3, np.float64)
         cj = np.empty(S, np.float64)
+        gq = np.empty((S, 3), np.float64)
         for x in range(W):
             d = depth[y, x]
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
@@ -335,11 +346,13 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
                 cost[y, x] = 2.0 + lam_geo * delta_geo
                 continue
             sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            if use_geo:
+                _geo_rays(GP, r0, r1, r2, gq)
             for j in range(S):
                 _homography(A, b, j, m, h)
                 c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
                 if use_geo:
-                    c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
+                    c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                 cj[j] = c
             cj.sort()
             k = min(best_k, S)
@@ -350,7 +363,7 @@ def initial_cost(ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, 
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam_geo, delta_geo,
+def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
             tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, depth, normal, cost):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
@@ -372,7 +385,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
     H, W = ref.shape
     S = srcs.shape[0]
     ns = sdy.shape[0]
-    NC = 1 + N_REGIONS
+    NR = rdy.shape[0]
+    NC = 1 + NR
     inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
     inv2conf = 1.0 / (2.0 * sigma_conf * sigma_conf)
     for y in prange(H):
@@ -388,16 +402,19 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
         cm = np.empty((NC, S), np.float64)
         wv = np.empty(S, np.float64)
         bestj = np.empty(S, np.float64)
+        gq = np.empty((S, 3), np.float64)
         for x in range((y + color) % 2, W, 2):
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
             sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            if use_geo:
+                _geo_rays(GP, r0, r1, r2, gq)
             # 1. candidates
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
             nc = 1
-            for reg in range(N_REGIONS):
+            for reg in range(NR):
                 best = 1e30
                 by = -1
                 bx = -1
@@ -447,7 +464,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                     _homography(A, b, j, m, h)
                     c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
                     if use_geo:
-                        c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
+                        c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                     cm[i, j] = c
             # 3. view weights
             wsum = 0.0
@@ -535,7 +552,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kr, Kinv, R, t, Kd, sdepth, use_geo, lam
                         _homography(A, b, j, m, h)
                         c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
                         if use_geo:
-                            c += lam_geo * _geo(j, d * r0, d * r1, d * r2, x, y, R, t, Kd, sdepth, Kr, delta_geo)
+                            c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                         acc += wv[j] * c
                         if acc >= bc * wsum:  # cannot win any more
                             break

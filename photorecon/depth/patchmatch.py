@@ -103,6 +103,16 @@ class _Geometry:
             self.A[j] = Ks @ rel[:3, :3] @ Krinv
             self.b[j] = Ks @ rel[:3, 3]
 
+    def reprojection(self, Kd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The geometric term's per-source terms for depth maps with intrinsics ``Kd`` (S, 3, 3): forward
+        GP = Kd R, Ge = Kd t; backward GM = Kr R^T Kd^-1, Gg = Kr R^T t (see ``_pm_kernels._geo``)."""
+        RT = self.R.transpose(0, 2, 1)
+        GP = np.ascontiguousarray(Kd @ self.R)
+        Ge = np.ascontiguousarray(np.einsum("sij,sj->si", Kd, self.t))
+        GM = np.ascontiguousarray(self.Kr @ RT @ np.linalg.inv(Kd))
+        Gg = np.ascontiguousarray(np.einsum("ij,sjk,sk->si", self.Kr, RT, self.t))
+        return GP, Ge, GM, Gg
+
 
 class PatchMatchParams:
     """The kernel settings derived from an ``MVSConfig`` (window samples, regions, thresholds)."""
@@ -163,11 +173,12 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     srcs = _stack(src_imgs)
     if geo is not None:
         sdepth = _stack(geo[0])
-        Kd = np.stack([_pinhole_K(v) for v in geo[1]])
+        GP, Ge, GM, Gg = g.reprojection(np.stack([_pinhole_K(v) for v in geo[1]]))
         use_geo, lam = True, float(cfg.geom_weight)
     else:
         sdepth = np.zeros((len(sources), 1, 1), np.float32)
-        Kd = np.zeros((len(sources), 3, 3))
+        GP, GM = np.zeros((len(sources), 3, 3)), np.zeros((len(sources), 3, 3))
+        Ge, Gg = np.zeros((len(sources), 3)), np.zeros((len(sources), 3))
         use_geo, lam = False, 0.0
     delta = 3.0
     if init_cost is not None and init_cost.shape == (H, W):
@@ -176,13 +187,13 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     else:
         cost = np.empty((H, W), np.float32)
         best_k = max(1, min(len(sources), (len(sources) + 1) // 2))
-        k.initial_cost(ref_img, srcs, g.A, g.b, g.Kr, g.Kinv, g.R, g.t, Kd, sdepth, use_geo, lam, delta,
+        k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta,
                        params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, depth, normal, cost)
     for it in range(iterations):
         tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
         pert = max(0.02 * 0.5 ** it, 0.002)
         for color in (0, 1):
-            k.pm_pass(color, it, ref_img, srcs, g.A, g.b, g.Kr, g.Kinv, g.R, g.t, Kd, sdepth, use_geo, lam, delta,
+            k.pm_pass(color, it, ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta,
                       params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var,
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
