@@ -9,6 +9,7 @@ OUT layout::
     OUT/depth/             NAME.npy (+ NAME.conf.npy) and NAME.png previews
     OUT/mesh.ply, mesh.glb the cleaned, fused mesh
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
+    OUT/preview_mesh.ply   the mesh decimated to <= 200k faces: report.html's 3D view
     OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
     OUT/report.html        a self-contained page: an interactive 3D view of the mesh and cameras, the previews,
                            depth maps and numbers (photorecon.report)
@@ -38,7 +39,7 @@ from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesErro
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
-from .report import write_html_report
+from .report import VIEWER_MAX_FACES, VIEWER_MESH, decimate_for_viewer, write_html_report
 from .scale import ScaleConfig
 from .sfm import SfMConfig
 from .stages import Stages, atomic_dir, fingerprint
@@ -230,10 +231,12 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         def preview() -> None:
             mesh = fused["mesh"] if "mesh" in fused else load(out / f"mesh.{formats[0]}")
             render_preview(mesh, out / "preview.png", cameras=ds.views)
+            export(decimate_for_viewer(mesh, VIEWER_MAX_FACES), out / VIEWER_MESH)  # report.html's 3D view
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
                    fusion, outputs=[out / f"mesh.{fmt}" for fmt in formats])
-        stages.run("preview", {}, preview, outputs=[out / "preview.png"])
+        stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview,
+                   outputs=[out / "preview.png", out / VIEWER_MESH])
     finally:
         log.removeHandler(handler)
     report = {
