@@ -74,7 +74,8 @@ def scene_up(cameras: list[View] | None) -> np.ndarray:
 def initial_view(mesh: trimesh.Trimesh, cameras: list[View] | None = None) -> dict:
     """Where the viewer starts: ``target`` (bounding-box centre), ``radius`` (bounding sphere about it),
     ``up``, ``front`` (unit, perpendicular to ``up``: from the target towards the cameras' mean position
-    when they stand on one side, as for a facade, else towards the first camera; +x-ish without cameras),
+    when they stand on one side, as for a facade, else between the first camera and its nearest neighbour;
+    +x-ish without cameras),
     ``elevation_deg`` and ``fov_deg``. All in the mesh's world units and frame."""
     verts = np.asarray(mesh.vertices, np.float64)
     lo, hi = verts.min(0), verts.max(0)
@@ -86,7 +87,11 @@ def initial_view(mesh: trimesh.Trimesh, cameras: list[View] | None = None) -> di
         dirs = np.array([c.center for c in cameras]) - target
         dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
         mean_dir = dirs.mean(0)
-        front = mean_dir if np.linalg.norm(mean_dir) > 0.5 else dirs[0]
+        if np.linalg.norm(mean_dir) > 0.5 or len(dirs) == 1:
+            front = mean_dir
+        else:  # all around: between the first camera and its nearest neighbour, so that no camera (nor its
+            # image, in 'photorecon view') stands in front of the eye
+            front = dirs[0] + dirs[1 + int(np.argmax(dirs[1:] @ dirs[0]))]
     if front is not None:
         front = front - (front @ up) * up
     if front is None or np.linalg.norm(front) < 1e-6:
