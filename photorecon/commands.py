@@ -400,3 +400,57 @@ def _run_depth(args):
     if rep["excluded"]:
         print("  excluded: " + ", ".join(f"{k} ({v})" for k, v in rep["excluded"].items()))
     return 0
+
+
+@command
+def view(sub):
+    from .report import VIEW_MAX_FACES
+
+    p = sub.add_parser("view", help="look at a result: the mesh and the cameras in a browser (served on localhost)",
+                       description="Serves an interactive 3D view of a result (the mesh, the cameras as frusta with "
+                                   "their images) with viser on http://HOST:PORT until Ctrl-C; or, with --html FILE, "
+                                   "writes a standalone viewer page (one file, no server, no network) and exits.")
+    p.add_argument("result", help="result folder (OUT of 'reconstruct' or 'fuse') or a mesh file (never written to)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1, this machine only)")
+    p.add_argument("--port", type=int, default=8080, help="port (default: 8080; 0 = any free port)")
+    p.add_argument("--max-faces", type=int, default=None,
+                   help=f"decimate larger meshes to this many faces (default: {VIEW_MAX_FACES:,} served, "
+                        "200,000 for --html)")
+    p.add_argument("--lighting", choices=("environment", "plain"), default="environment",
+                   help="environment: soft image-based light from all sides (default); plain: directional "
+                        "lights only, which a browser without a GPU (software WebGL) draws at once instead of "
+                        "after ~20 s")
+    p.add_argument("--html", metavar="FILE", help="write a standalone viewer page to FILE instead of serving")
+    p.set_defaults(func=_run_view)
+
+
+def _run_view(args):
+    import time
+
+    from .errors import BadArgumentError
+    from .report import (VIEW_MAX_FACES, VIEWER_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
+                         write_viewer_page)
+
+    if args.max_faces is not None and args.max_faces < 4:
+        raise BadArgumentError(f"--max-faces: expected >= 4, got {args.max_faces}")
+    if not 0 <= args.port <= 65535:
+        raise BadArgumentError(f"--port: expected 0-65535, got {args.port}")
+    mesh, cameras, images = load_result(args.result)
+    if args.html:
+        path = write_viewer_page(args.html, mesh, cameras, title=f"photorecon: {args.result}",
+                                 max_faces=args.max_faces or VIEWER_MAX_FACES)
+        print(f"view: {len(mesh.faces):,} faces, {len(cameras)} cameras -> {path} (open it in a browser)")
+        return 0
+    try:
+        server = start_viewer_server(mesh, cameras, images, args.host, args.port, args.max_faces or VIEW_MAX_FACES,
+                                     args.lighting)
+    except OSError as exc:
+        raise BadArgumentError(f"--host {args.host} --port {args.port}: cannot serve there ({exc})") from None
+    host = server.get_host()
+    print(f"view: {len(mesh.faces):,} faces, {len(cameras)} cameras at http://{host}:{server.get_port()} "
+          "(Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    finally:
+        stop_viewer_server(server)

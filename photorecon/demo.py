@@ -26,7 +26,8 @@ class DemoConfig:
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
     from .io.output import prepare_output
     from .metrics import evaluate_reconstruction
-    from .pipeline import StageConfigs, reconstruct, write_html_report
+    from .pipeline import StageConfigs, reconstruct
+    from .report import write_html_report
     from .synthetic import SynthConfig, synthesize
 
     cfg = cfg or DemoConfig()

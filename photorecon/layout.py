@@ -76,6 +76,11 @@ class Layout:
         return self.root / "preview.png"
 
     @property
+    def viewer_mesh(self) -> Path:
+        """The mesh decimated for report.html's and ``photorecon view``'s 3D view."""
+        return self.root / "preview_mesh.ply"
+
+    @property
     def report_json(self) -> Path:
         return self.root / "report.json"
 

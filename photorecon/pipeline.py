@@ -9,8 +9,10 @@ OUT layout::
     OUT/depth/             NAME.npy (+ NAME.conf.npy) and NAME.png previews
     OUT/mesh.ply, mesh.glb the cleaned, fused mesh
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
+    OUT/preview_mesh.ply   the mesh decimated to <= 200k faces: report.html's 3D view
     OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
-    OUT/report.html        a self-contained page with the previews, depth maps and numbers
+    OUT/report.html        a self-contained page: an interactive 3D view of the mesh and cameras, the previews,
+                           depth maps and numbers (photorecon.report)
     OUT/colmap/            SfM working files (database, distorted model), cached
     OUT/.stages/           one marker per completed stage (poses, depth, fusion, preview): a hash of its
                            settings, of its input files' names, sizes and times and of the stage before;
@@ -22,9 +24,6 @@ that runs again makes every later stage run again. The input folder is never wri
 """
 from __future__ import annotations
 
-import base64
-import html
-import json
 import logging
 import platform
 import shutil
@@ -38,8 +37,9 @@ from . import __version__
 from .depth.mvs import MVSConfig
 from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesError
 from .fusion import FusionConfig
-from .io.atomic import atomic_write_json, atomic_write_text
+from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
+from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
 from .scale import ScaleConfig
 from .sfm import SfMConfig
 from .layout import Layout
@@ -236,10 +236,11 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         def preview() -> None:
             mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
             render_preview(mesh, layout.preview, cameras=ds.views)
+            export(decimate_for_viewer(mesh, VIEWER_MAX_FACES), layout.viewer_mesh)  # report.html's 3D view
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats])
-        stages.run("preview", {}, preview, outputs=[layout.preview])
+        stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh])
     finally:
         log.removeHandler(handler)
     report = {
@@ -303,39 +304,3 @@ def _versions() -> dict:
         except Exception:  # a missing optional module is reported as such
             out[mod] = None
     return out
-
-
-def _img_tag(path: Path, width: int | None = None) -> str:
-    if not path.is_file():
-        return ""
-    data = base64.b64encode(path.read_bytes()).decode()
-    w = f' width="{width}"' if width else ""
-    return f'<img src="data:image/png;base64,{data}"{w} alt="{html.escape(path.name)}">'
-
-
-def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -> Path:
-    """A self-contained report.html (images embedded as data URIs; opens with no server)."""
-    rows = []
-    for stage, s in report.get("stages", {}).items():
-        rows.append(f"<tr><td>{html.escape(stage)}</td><td>{s.get('seconds', 0):.2f}</td>"
-                    f"<td>{s.get('peak_mb', '')}</td><td>{'cached' if s.get('cached') else ''}</td></tr>")
-    facts = {"registered images": report.get("poses", {}).get("registered"),
-             "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
-             "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
-             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces")}
-    facts.update(extra_rows or {})
-    fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
-    depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""
-    warn = "".join(f"<li>{html.escape(w)}</li>" for w in report.get("warnings", [])) or "<li>none</li>"
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>photorecon report</title>
-<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}img{{margin:2px}}</style>
-</head><body><h1>photorecon report</h1>
-<p>photorecon {html.escape(str(report.get('photorecon')))} &middot; input {html.escape(str(report.get('input')))}</p>
-<h2>Mesh</h2>{_img_tag(out / 'preview.png')}
-<h2>Summary</h2><table>{fact_rows}</table>
-<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak MB</th><th></th></tr>{''.join(rows)}</table>
-<h2>Depth maps</h2><div>{depth_imgs}</div>
-<h2>Warnings</h2><ul>{warn}</ul>
-<h2>Parameters</h2><pre>{html.escape(json.dumps(report.get('parameters', {}), indent=1))}</pre>
-</body></html>"""
-    return atomic_write_text(out / "report.html", page)

@@ -1,0 +1,580 @@
+"""What people look at: report.html (previews, an interactive 3D view, depth maps, numbers) and the
+standalone 3D viewer page.
+
+The 3D view is a small hand-written WebGL2 viewer (no library, no network): the mesh (decimated to
+``VIEWER_MAX_FACES``) travels inside the page as zlib-compressed base64 (uint32 faces, uint16 positions
+quantised over the bounding box, uint8 vertex colours) and is inflated by the browser's
+``DecompressionStream``; the cameras are drawn as frusta (line segments). Orbit / pan / zoom with mouse or
+touch, a reset button. The page opens from ``file://`` with no server.
+
+The initial view is computed here (``initial_view``) so tests can render the same viewpoint and compare
+silhouettes: the camera looks at the mesh's bounding-box centre from direction ``front`` tilted by
+``elevation_deg`` towards ``up``, at the distance where the mesh's bounding sphere fills the narrower field
+of view (``fov_deg`` vertical, or the horizontal one when the canvas is taller than wide).
+"""
+from __future__ import annotations
+
+import base64
+import contextlib
+import html
+import io
+import struct
+import json
+import logging
+import zlib
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .cameras import View, invert_rigid
+from .errors import EmptyMeshError
+from .io.atomic import atomic_write_text
+from .layout import Layout
+
+log = logging.getLogger("photorecon")
+
+VIEWER_MAX_FACES = 200_000  # report.html's mesh budget: about 3 MB of page for 200k faces
+VIEWER_FOV_DEG = 45.0
+VIEWER_ELEVATION_DEG = 20.0
+MESH_NAMES = ("mesh.ply", "mesh.glb", "mesh.obj")
+
+
+# --- the viewer's data ---------------------------------------------------------------------------------------
+def decimate_for_viewer(mesh: trimesh.Trimesh, max_faces: int = VIEWER_MAX_FACES) -> trimesh.Trimesh:
+    """``mesh`` itself when it has at most ``max_faces`` faces, else decimated to that budget: quadric
+    decimation (Open3D), after a vertex-clustering pass down to about twice the budget when the mesh is
+    more than 4x over it (quadric decimation alone took 18 s for 466k -> 200k faces on 2 cores)."""
+    if not len(mesh.faces):
+        raise EmptyMeshError("the mesh has no triangle: nothing to show")
+    if len(mesh.faces) <= max_faces:
+        return mesh
+    from .mesh import from_open3d, simplify, to_open3d
+
+    n0 = len(mesh.faces)
+    if n0 > 4 * max_faces:
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        edge = float(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1).mean())
+        if edge > 0:  # faces scale with 1 / cell^2
+            mesh = from_open3d(to_open3d(mesh).simplify_vertex_clustering(edge * np.sqrt(n0 / (2 * max_faces))))
+    out = simplify(mesh, max_faces) if len(mesh.faces) > max_faces else mesh
+    log.debug("viewer: mesh decimated from %d to %d faces", n0, len(out.faces))
+    return out
+
+
+def scene_up(cameras: list[View] | None) -> np.ndarray:
+    """The cameras' mean "up" (-y in OpenCV axes) when they agree on one, else +z."""
+    if cameras:
+        ups = np.array([-invert_rigid(c.cam_from_world)[:3, 1] for c in cameras]).mean(0)
+        if np.linalg.norm(ups) > 0.3:
+            return ups / np.linalg.norm(ups)
+    return np.array([0.0, 0.0, 1.0])
+
+
+def initial_view(mesh: trimesh.Trimesh, cameras: list[View] | None = None) -> dict:
+    """Where the viewer starts: ``target`` (bounding-box centre), ``radius`` (bounding sphere about it),
+    ``up``, ``front`` (unit, perpendicular to ``up``: from the target towards the cameras' mean position
+    when they stand on one side, as for a facade, else between the first camera and its nearest neighbour;
+    +x-ish without cameras),
+    ``elevation_deg`` and ``fov_deg``. All in the mesh's world units and frame."""
+    verts = np.asarray(mesh.vertices, np.float64)
+    lo, hi = verts.min(0), verts.max(0)
+    target = (lo + hi) / 2
+    radius = float(np.linalg.norm(verts - target, axis=1).max()) or 1.0
+    up = scene_up(cameras)
+    front = None
+    if cameras:
+        dirs = np.array([c.center for c in cameras]) - target
+        dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
+        mean_dir = dirs.mean(0)
+        if np.linalg.norm(mean_dir) > 0.5 or len(dirs) == 1:
+            front = mean_dir
+        else:  # all around: between the first camera and its nearest neighbour, so that no camera (nor its
+            # image, in 'photorecon view') stands in front of the eye
+            front = dirs[0] + dirs[1 + int(np.argmax(dirs[1:] @ dirs[0]))]
+    if front is not None:
+        front = front - (front @ up) * up
+    if front is None or np.linalg.norm(front) < 1e-6:
+        a = np.array([1.0, 0, 0]) if abs(up[0]) < 0.9 else np.array([0, 1.0, 0])
+        front = a - (a @ up) * up
+    front = front / np.linalg.norm(front)
+    return {"target": target.tolist(), "radius": radius, "up": up.tolist(), "front": front.tolist(),
+            "elevation_deg": VIEWER_ELEVATION_DEG, "fov_deg": VIEWER_FOV_DEG}
+
+
+def initial_eye(view: dict, width: int, height: int) -> np.ndarray:
+    """The viewer's first eye position for a ``width`` x ``height`` canvas (the JavaScript's ``reset``)."""
+    fov_y = np.radians(view["fov_deg"])
+    fov_min = min(fov_y, 2 * np.arctan(np.tan(fov_y / 2) * width / height))
+    dist = view["radius"] / np.sin(fov_min / 2) * 1.05
+    el = np.radians(view["elevation_deg"])
+    d = np.cos(el) * np.asarray(view["front"]) + np.sin(el) * np.asarray(view["up"])
+    return np.asarray(view["target"]) + dist * d
+
+
+def frustum_scale(view: dict, cameras: list[View]) -> float:
+    """Frustum depth for drawing: a tenth of the cameras' median distance to the target (readable when the
+    view frames all the cameras), at least 0.12 of the mesh's radius."""
+    d = np.linalg.norm(np.array([c.center for c in cameras]) - view["target"], axis=1)
+    return max(0.1 * float(np.median(d)), 0.12 * view["radius"])
+
+
+def frustum_segments(cameras: list[View], scale: float) -> np.ndarray:
+    """(16 * len(cameras), 3) float32: per camera, 8 line segments (centre to the 4 image corners, and the
+    image rectangle) with the image plane at ``scale`` from the centre along the longest corner ray."""
+    segs = []
+    for cam in cameras:
+        W, H = cam.intrinsics.size
+        corners = np.array([[-0.5, -0.5], [W - 0.5, -0.5], [W - 0.5, H - 0.5], [-0.5, H - 0.5]])
+        rays = cam.intrinsics.pixel_rays(corners)
+        rays *= scale / np.linalg.norm(rays, axis=1, keepdims=True).max()
+        world_from_cam = invert_rigid(cam.cam_from_world)
+        c = world_from_cam[:3, 3]
+        p = rays @ world_from_cam[:3, :3].T + c
+        for i in range(4):
+            segs += [c, p[i], p[i], p[(i + 1) % 4]]
+    return np.asarray(segs, np.float32).reshape(-1, 3)
+
+
+def viewer_payload(mesh: trimesh.Trimesh, cameras: list[View] | None = None,
+                   max_faces: int = VIEWER_MAX_FACES) -> dict:
+    """The viewer's data: ``meta`` (JSON-able: counts, quantisation, initial view, frusta) and ``data``
+    (base64 of zlib(faces uint32 | positions uint16 | colours uint8))."""
+    shown = decimate_for_viewer(mesh, max_faces)
+    verts = np.asarray(shown.vertices, np.float64)
+    faces = np.ascontiguousarray(shown.faces, dtype="<u4")
+    lo, hi = verts.min(0), verts.max(0)
+    step = max(float((hi - lo).max()), 1e-12) / 65535.0
+    q = np.clip(np.round((verts - lo) / step), 0, 65535).astype("<u2")
+    colors = None
+    if shown.visual.kind == "texture":  # a textured mesh: its texture sampled at the vertices
+        try:
+            shown = trimesh.Trimesh(shown.vertices, shown.faces, process=False,
+                                    vertex_colors=shown.visual.to_color().vertex_colors)
+        except Exception as exc:  # a texture trimesh cannot sample: grey, and say so
+            log.warning("viewer: texture not shown (%s)", exc)
+    if shown.visual.kind == "vertex":
+        colors = np.asarray(shown.visual.vertex_colors)[:, :3].astype(np.uint8)
+    has_colors = colors is not None and colors.std() > 1
+    if not has_colors:
+        colors = np.full((len(verts), 3), 190, np.uint8)
+    blob = zlib.compress(faces.tobytes() + q.tobytes() + np.ascontiguousarray(colors).tobytes(), 6)
+    view = initial_view(shown, cameras)
+    cams = cameras or []
+    lines = frustum_segments(cams, frustum_scale(view, cams)) if cams else np.zeros((0, 3), np.float32)
+    meta = {"faces": int(len(faces)), "vertices": int(len(verts)), "faces_full": int(len(mesh.faces)),
+            "offset": lo.tolist(), "step": step, "colored": bool(has_colors), "view": view,
+            "cameras": len(cams), "frustum_scale": frustum_scale(view, cams) if cams else 0.0, "frusta": np.round(lines, 6).ravel().tolist(),
+            "camera_centers": [np.round(c.center, 6).tolist() for c in cams]}
+    return {"meta": meta, "data": base64.b64encode(blob).decode("ascii")}
+
+
+def find_mesh(folder: Path) -> Path | None:
+    for name in MESH_NAMES:
+        if (folder / name).is_file():
+            return folder / name
+    return None
+
+
+def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str, Path]]:
+    """A result to look at: ``path`` is a result folder (``reconstruct`` or ``fuse`` output: OUT/mesh.ply,
+    .glb or .obj, cameras from OUT/sparse/0 or OUT/transforms.json when there, images in OUT/images) or a
+    mesh file. Returns (mesh, cameras, view name -> image file). Raises ``InputDataError`` (no mesh, a
+    mesh without faces, unreadable cameras)."""
+    from .errors import InputDataError
+    from .mesh import load
+
+    path = Path(path)
+    if path.is_dir():
+        mesh_path = find_mesh(path)
+        if mesh_path is None:
+            raise InputDataError(f"{path}: no {', '.join(MESH_NAMES)}; expected the output folder of "
+                                 "'photorecon reconstruct' or 'fuse', or a mesh file")
+    elif path.is_file():
+        mesh_path = path
+    else:
+        raise InputDataError(f"{path}: no such result folder or mesh file")
+    mesh = load(mesh_path)  # InputDataError for an unreadable file or a mesh without faces
+    cameras = result_cameras(path) if path.is_dir() else []
+    images = {}
+    for v in cameras:
+        p = path / "images" / v.extra.get("image_file", v.name)
+        if p.is_file():
+            images[v.name] = p
+    return mesh, cameras, images
+
+
+def result_cameras(folder: Path) -> list[View]:
+    """The cameras of a result folder (OUT/sparse/0 or OUT/transforms.json), or [] when it has none."""
+    if not ((folder / "sparse").is_dir() or (folder / "transforms.json").is_file()):
+        return []
+    from .io.dataset import read_model
+
+    return read_model(folder).views
+
+
+# --- HTML ------------------------------------------------------------------------------------------------------
+def viewer_html(payload: dict, full_window: bool = False) -> str:
+    """A ``<div>`` with the canvas, its buttons, the embedded data and the viewer script. ``full_window``:
+    the viewer fills the page (the standalone page); otherwise ``#viewer`` in the URL does that."""
+    meta = json.dumps(payload["meta"], separators=(",", ":")).replace("</", "<\\/")
+    m = payload["meta"]
+    shown = (f"{m['faces']:,} of {m['faces_full']:,} faces" if m["faces_full"] > m["faces"] else f"{m['faces']:,} faces")
+    return (f'<div id="viewer" class="prv{" prv-page" if full_window else ""}">'
+            '<canvas id="prv-canvas"></canvas>'
+            '<div class="prv-bar"><button id="prv-reset" title="back to the first view">Reset view</button>'
+            '<button id="prv-cams" title="show or hide the camera frusta">Cameras</button>'
+            '<button id="prv-fitcams" title="frame the mesh and all cameras">Fit cameras</button>'
+            '<button id="prv-colors" title="vertex colours or plain grey (shows the shape of dark surfaces)">Colours</button>'
+            + ('' if full_window else '<a id="prv-full" href="#viewer">full window</a>') +
+            f'<span class="prv-info" title="drag: rotate; right-drag or shift-drag: pan; wheel or pinch: zoom; '
+            f'double-click: reset">{html.escape(shown)} &middot; {m["cameras"]} cameras &middot; drag, right-drag, '
+            'wheel</span></div>'
+            '<div id="prv-msg"></div></div>'
+            f'<script type="application/json" id="prv-meta">{meta}</script>'
+            f'<script type="application/octet-stream" id="prv-data">{payload["data"]}</script>'
+            f'<script>{_VIEWER_JS}</script>')
+
+
+VIEWER_CSS = """.prv{position:relative;width:100%;max-width:1100px;height:560px;background:#eef0f3;border:1px solid #ccc}
+.prv canvas{width:100%;height:100%;display:block;touch-action:none;cursor:grab}
+.prv-page,.prv:target{position:fixed;left:0;top:0;width:100vw;height:100vh;max-width:none;border:0;z-index:10}
+.prv-bar{position:absolute;left:8px;top:8px;font:13px sans-serif;color:#333}
+.prv-bar button,.prv-bar a{font:13px sans-serif;margin-right:4px;padding:3px 8px;background:#fff;border:1px solid #999;border-radius:3px;color:#222;text-decoration:none}
+.prv-info{margin-left:6px;background:rgba(255,255,255,.7);padding:2px 4px}
+#prv-msg{position:absolute;left:8px;bottom:8px;font:14px sans-serif;color:#a00}"""
+
+_VIEWER_JS = r"""
+(function () {
+  const canvas = document.getElementById('prv-canvas');
+  const msg = t => { document.getElementById('prv-msg').textContent = t; canvas.dataset.state = 'error'; };
+  const meta = JSON.parse(document.getElementById('prv-meta').textContent);
+  const gl = canvas.getContext('webgl2', {antialias: true, preserveDrawingBuffer: true});
+  if (!gl) { msg('This browser has no WebGL2: the 3D view needs it (the images below show the result).'); return; }
+  if (typeof DecompressionStream === 'undefined') { msg('This browser cannot inflate the embedded mesh (no DecompressionStream).'); return; }
+  const V = meta.view;
+  // --- small vector / matrix helpers (column-major 4x4, as WebGL wants) ---
+  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]], add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+  const mul = (a, s) => [a[0] * s, a[1] * s, a[2] * s], dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const norm = a => mul(a, 1 / Math.hypot(a[0], a[1], a[2]));
+  function lookAt(eye, c, up) {
+    const z = norm(sub(eye, c)), x = norm(cross(up, z)), y = cross(z, x);
+    return [x[0], y[0], z[0], 0, x[1], y[1], z[1], 0, x[2], y[2], z[2], 0, -dot(x, eye), -dot(y, eye), -dot(z, eye), 1];
+  }
+  function perspective(fovy, aspect, n, f) {
+    const t = 1 / Math.tan(fovy / 2);
+    return [t / aspect, 0, 0, 0, 0, t, 0, 0, 0, 0, (f + n) / (n - f), -1, 0, 0, 2 * f * n / (n - f), 0];
+  }
+  function mat(a, b) {
+    const o = new Array(16);
+    for (let c = 0; c < 4; c++) for (let r = 0; r < 4; r++) {
+      let s = 0; for (let k = 0; k < 4; k++) s += a[k * 4 + r] * b[c * 4 + k]; o[c * 4 + r] = s;
+    }
+    return o;
+  }
+  // --- shaders ---
+  function program(vs, fs) {
+    const p = gl.createProgram();
+    for (const [type, src] of [[gl.VERTEX_SHADER, vs], [gl.FRAGMENT_SHADER, fs]]) {
+      const s = gl.createShader(type); gl.shaderSource(s, src); gl.compileShader(s);
+      if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+      gl.attachShader(p, s);
+    }
+    gl.linkProgram(p);
+    if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
+    return p;
+  }
+  const meshProg = program(`#version 300 es
+    layout(location=0) in vec3 pos; layout(location=1) in vec3 col; layout(location=2) in vec3 nrm;
+    uniform mat4 mvp, mv; out vec3 vcol, vn;
+    void main() { vcol = col; vn = mat3(mv) * nrm; gl_Position = mvp * vec4(pos, 1.0); }`,
+    `#version 300 es
+    precision highp float; in vec3 vcol, vn; uniform float ambient; uniform bool grey; out vec4 o;
+    void main() {
+      vec3 n = normalize(vn);
+      float d = abs(dot(n, normalize(vec3(0.35, 0.45, 1.0))));   // a light near the eye; two-sided
+      o = vec4((grey ? vec3(0.75) : vcol) * (ambient + (1.0 - ambient) * d), 1.0);
+    }`);
+  const lineProg = program(`#version 300 es
+    layout(location=0) in vec3 pos; uniform mat4 mvp; void main() { gl_Position = mvp * vec4(pos, 1.0); }`,
+    `#version 300 es
+    precision highp float; uniform vec3 color; out vec4 o; void main() { o = vec4(color, 1.0); }`);
+  // --- state ---
+  let nIdx = 0, meshVao = null, lineVao = null, showCams = meta.cameras > 0, colors = meta.colored, target, dist, az, el, dirty = true;
+  const up = norm(V.up), e1 = norm(V.front), e2 = cross(up, e1);
+  const fovy = V.fov_deg * Math.PI / 180;
+  function fitDistance(radius) {
+    const aspect = canvas.clientWidth / Math.max(1, canvas.clientHeight);
+    const fovMin = Math.min(fovy, 2 * Math.atan(Math.tan(fovy / 2) * aspect));
+    return radius / Math.sin(fovMin / 2) * 1.05;
+  }
+  function reset() { target = V.target.slice(); dist = fitDistance(V.radius); az = 0; el = V.elevation_deg * Math.PI / 180; dirty = true; }
+  function fitCameras() {
+    let r = V.radius;
+    for (const c of meta.camera_centers) r = Math.max(r, Math.hypot(...sub(c, V.target)) * 1.1);
+    target = V.target.slice(); dist = fitDistance(r); dirty = true;
+  }
+  function eyeDir() {
+    return add(mul(add(mul(e1, Math.cos(az)), mul(e2, Math.sin(az))), Math.cos(el)), mul(up, Math.sin(el)));
+  }
+  function draw() {
+    dirty = false;
+    const w = Math.max(1, Math.round(canvas.clientWidth * devicePixelRatio)), h = Math.max(1, Math.round(canvas.clientHeight * devicePixelRatio));
+    if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
+    gl.viewport(0, 0, w, h);
+    gl.clearColor(0.933, 0.941, 0.953, 1); gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+    const eye = add(target, mul(eyeDir(), dist));
+    let far = dist + 2 * V.radius;
+    if (showCams) for (const c of meta.camera_centers) far = Math.max(far, Math.hypot(...sub(c, eye)) + 0.2 * V.radius);
+    let near = dist - 1.5 * V.radius;   // in front of the mesh and of every camera drawn
+    if (showCams) for (const c of meta.camera_centers) near = Math.min(near, Math.hypot(...sub(c, eye)) - 1.5 * meta.frustum_scale);
+    near = Math.max(near, far / 2000);
+    const mv = lookAt(eye, target, up), mvp = mat(perspective(fovy, w / h, near, far), mv);
+    gl.enable(gl.DEPTH_TEST);
+    if (meshVao) {
+      gl.useProgram(meshProg);
+      gl.uniformMatrix4fv(gl.getUniformLocation(meshProg, 'mvp'), false, mvp);
+      gl.uniformMatrix4fv(gl.getUniformLocation(meshProg, 'mv'), false, mv);
+      gl.uniform1f(gl.getUniformLocation(meshProg, 'ambient'), colors ? 0.55 : 0.25);
+      gl.uniform1i(gl.getUniformLocation(meshProg, 'grey'), colors ? 0 : 1);
+      gl.bindVertexArray(meshVao); gl.drawElements(gl.TRIANGLES, nIdx, gl.UNSIGNED_INT, 0);
+    }
+    if (showCams && lineVao) {
+      gl.useProgram(lineProg);
+      gl.uniformMatrix4fv(gl.getUniformLocation(lineProg, 'mvp'), false, mvp);
+      gl.uniform3f(gl.getUniformLocation(lineProg, 'color'), 0.86, 0.16, 0.16);
+      gl.bindVertexArray(lineVao); gl.drawArrays(gl.LINES, 0, meta.frusta.length / 3);
+    }
+    gl.bindVertexArray(null);
+    canvas.dataset.state = 'drawn';
+  }
+  function frame() { if (dirty) draw(); requestAnimationFrame(frame); }
+  // --- data: base64 -> zlib inflate -> faces | positions | colours ---
+  async function load() {
+    const b64 = document.getElementById('prv-data').textContent.trim(), bin = atob(b64);
+    const bytes = new Uint8Array(bin.length);
+    for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
+    const buf = await new Response(new Blob([bytes]).stream().pipeThrough(new DecompressionStream('deflate'))).arrayBuffer();
+    const nf = meta.faces, nv = meta.vertices;
+    const idx = new Uint32Array(buf, 0, nf * 3), q = new Uint16Array(buf, nf * 12, nv * 3);
+    const col = new Uint8Array(buf, nf * 12 + nv * 6, nv * 3);
+    const pos = new Float32Array(nv * 3), nrm = new Float32Array(nv * 3);
+    for (let i = 0; i < nv * 3; i++) pos[i] = meta.offset[i % 3] + q[i] * meta.step;
+    for (let f = 0; f < nf * 3; f += 3) {   // area-weighted vertex normals
+      const a = idx[f] * 3, b = idx[f + 1] * 3, c = idx[f + 2] * 3;
+      const ux = pos[b] - pos[a], uy = pos[b + 1] - pos[a + 1], uz = pos[b + 2] - pos[a + 2];
+      const vx = pos[c] - pos[a], vy = pos[c + 1] - pos[a + 1], vz = pos[c + 2] - pos[a + 2];
+      const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+      for (const k of [a, b, c]) { nrm[k] += nx; nrm[k + 1] += ny; nrm[k + 2] += nz; }
+    }
+    meshVao = gl.createVertexArray(); gl.bindVertexArray(meshVao);
+    const attr = (loc, data, type, normalized) => {
+      gl.bindBuffer(gl.ARRAY_BUFFER, gl.createBuffer()); gl.bufferData(gl.ARRAY_BUFFER, data, gl.STATIC_DRAW);
+      gl.enableVertexAttribArray(loc); gl.vertexAttribPointer(loc, 3, type, normalized, 0, 0);
+    };
+    attr(0, pos, gl.FLOAT, false); attr(1, col, gl.UNSIGNED_BYTE, true); attr(2, nrm, gl.FLOAT, false);
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gl.createBuffer()); gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, idx, gl.STATIC_DRAW);
+    nIdx = nf * 3;
+    if (meta.frusta.length) {
+      lineVao = gl.createVertexArray(); gl.bindVertexArray(lineVao); attr(0, new Float32Array(meta.frusta), gl.FLOAT, false);
+    }
+    gl.bindVertexArray(null);
+    dirty = true;
+  }
+  // --- interaction: pointer events cover mouse, pen and touch ---
+  const pts = new Map(); let last = null;
+  function pan(dx, dy) {
+    const s = 2 * dist * Math.tan(fovy / 2) / Math.max(1, canvas.clientHeight), d = eyeDir();
+    const right = norm(cross(up, d)), u = cross(d, right);
+    target = add(target, add(mul(right, -dx * s), mul(u, dy * s))); dirty = true;
+  }
+  function rotate(dx, dy) {
+    az -= dx * 0.008; el = Math.max(-1.55, Math.min(1.55, el + dy * 0.008)); dirty = true;
+  }
+  function pinchState() {
+    const p = [...pts.values()];
+    return {mid: [(p[0].x + p[1].x) / 2, (p[0].y + p[1].y) / 2], d: Math.hypot(p[0].x - p[1].x, p[0].y - p[1].y)};
+  }
+  canvas.addEventListener('pointerdown', e => {
+    canvas.setPointerCapture(e.pointerId); pts.set(e.pointerId, {x: e.clientX, y: e.clientY, button: e.button, shift: e.shiftKey});
+    last = pts.size === 2 ? pinchState() : null;
+  });
+  canvas.addEventListener('pointermove', e => {
+    const p = pts.get(e.pointerId); if (!p) return;
+    const dx = e.clientX - p.x, dy = e.clientY - p.y; p.x = e.clientX; p.y = e.clientY;
+    if (pts.size === 1) { (p.button === 2 || p.button === 1 || e.shiftKey) ? pan(dx, dy) : rotate(dx, dy); }
+    else if (pts.size === 2) {
+      const s = pinchState();
+      if (last) { dist *= last.d / Math.max(1, s.d); pan(s.mid[0] - last.mid[0], s.mid[1] - last.mid[1]); }
+      last = s;
+    }
+  });
+  const release = e => { pts.delete(e.pointerId); last = pts.size === 2 ? pinchState() : null; };
+  canvas.addEventListener('pointerup', release); canvas.addEventListener('pointercancel', release);
+  canvas.addEventListener('contextmenu', e => e.preventDefault());
+  canvas.addEventListener('wheel', e => { e.preventDefault(); dist *= Math.exp(e.deltaY * 0.0015); dirty = true; }, {passive: false});
+  canvas.addEventListener('dblclick', reset);
+  document.getElementById('prv-reset').onclick = reset;
+  document.getElementById('prv-fitcams').onclick = fitCameras;
+  document.getElementById('prv-colors').onclick = () => { colors = !colors; dirty = true; };
+  document.getElementById('prv-cams').onclick = () => { showCams = !showCams; dirty = true; };
+  window.addEventListener('resize', () => { dirty = true; });
+  const full = document.getElementById('prv-full');
+  const onHash = () => { dirty = true; if (full) { const on = location.hash === '#viewer'; full.href = on ? '#' : '#viewer'; full.textContent = on ? 'close full window' : 'full window'; document.body.style.overflow = on ? 'hidden' : ''; } };
+  window.addEventListener('hashchange', onHash); onHash();
+  reset();
+  load().then(() => requestAnimationFrame(frame), err => msg('Could not load the mesh: ' + err));
+})();
+"""
+
+
+def write_viewer_page(path: str | Path, mesh: trimesh.Trimesh, cameras: list[View] | None = None,
+                      title: str = "photorecon viewer", max_faces: int = VIEWER_MAX_FACES) -> Path:
+    """A standalone page holding only the 3D viewer (full window), written atomically."""
+    body = viewer_html(viewer_payload(mesh, cameras, max_faces), full_window=True)
+    page = (f'<!doctype html><html><head><meta charset="utf-8"><meta name="viewport" content="width=device-width">'
+            f'<title>{html.escape(title)}</title><style>body{{margin:0}}{VIEWER_CSS}</style></head>'
+            f'<body>{body}</body></html>')
+    return atomic_write_text(path, page)
+
+
+def _img_tag(path: Path, width: int | None = None) -> str:
+    if not path.is_file():
+        return ""
+    data = base64.b64encode(path.read_bytes()).decode()
+    w = f' width="{width}"' if width else ""
+    return f'<img src="data:image/png;base64,{data}"{w} alt="{html.escape(path.name)}">'
+
+
+def _viewer_section(out: Path) -> str:
+    """report.html's 3D view of OUT's mesh and cameras (a line saying why when there is none)."""
+    path = Layout(out).viewer_mesh if Layout(out).viewer_mesh.is_file() else find_mesh(out)
+    if path is None:
+        return "<p>No mesh in this folder.</p>"
+    from .mesh import load
+
+    try:
+        mesh = load(path)
+        cameras = result_cameras(out)
+        return viewer_html(viewer_payload(mesh, cameras))
+    except Exception as exc:  # the report's other contents still matter; say what went wrong
+        log.warning("report.html: no 3D view (%s)", exc)
+        return f"<p>No 3D view: {html.escape(str(exc))}</p>"
+
+
+def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -> Path:
+    """A self-contained OUT/report.html: an interactive 3D view of OUT's mesh and cameras, the preview, the
+    numbers, depth maps, warnings, parameters. Images and mesh are embedded; it opens with no server."""
+    out = Path(out)
+    rows = []
+    for stage, s in report.get("stages", {}).items():
+        rows.append(f"<tr><td>{html.escape(stage)}</td><td>{s.get('seconds', 0):.2f}</td>"
+                    f"<td>{s.get('peak_mb', '')}</td><td>{'cached' if s.get('cached') else ''}</td></tr>")
+    facts = {"registered images": report.get("poses", {}).get("registered"),
+             "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
+             "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
+             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces")}
+    facts.update(extra_rows or {})
+    fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
+    depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""
+    warn = "".join(f"<li>{html.escape(w)}</li>" for w in report.get("warnings", [])) or "<li>none</li>"
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>photorecon report</title>
+<meta name="viewport" content="width=device-width">
+<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}img{{margin:2px}}
+{VIEWER_CSS}</style>
+</head><body><h1>photorecon report</h1>
+<p>photorecon {html.escape(str(report.get('photorecon')))} &middot; input {html.escape(str(report.get('input')))}</p>
+<h2>3D view</h2>{_viewer_section(out)}
+<h2>Mesh</h2>{_img_tag(out / 'preview.png')}
+<h2>Summary</h2><table>{fact_rows}</table>
+<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak MB</th><th></th></tr>{''.join(rows)}</table>
+<h2>Depth maps</h2><div>{depth_imgs}</div>
+<h2>Warnings</h2><ul>{warn}</ul>
+<h2>Parameters</h2><pre>{html.escape(json.dumps(report.get('parameters', {}), indent=1))}</pre>
+</body></html>"""
+    return atomic_write_text(out / "report.html", page)
+
+
+# --- photorecon view: a live viewer on localhost (viser) --------------------------------------------------------
+VIEW_MAX_FACES = 1_000_000  # the live viewer sends the mesh over a local websocket: a larger budget
+
+
+def _thumbnail(path: Path, long_side: int = 240) -> np.ndarray | None:
+    """A small RGB copy of an image for a frustum's picture (None when it cannot be read)."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        return None
+    s = long_side / max(img.shape[:2])
+    if s < 1:
+        img = cv2.resize(img, (max(1, round(img.shape[1] * s)), max(1, round(img.shape[0] * s))),
+                         interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+def _matte_glb(mesh: trimesh.Trimesh) -> bytes:
+    """``mesh`` as GLB with smooth vertex normals and a matte material (trimesh's default material has
+    roughness 0: a glossy surface that mirrors the lights and washes out the vertex colours)."""
+    from trimesh.exchange.gltf import export_glb
+
+    glb = export_glb(trimesh.Scene(mesh), include_normals=True)
+    n = struct.unpack_from("<I", glb, 12)[0]  # header (12 bytes), then the JSON chunk: length, type, data
+    doc = json.loads(glb[20:20 + n])
+    for mat in doc.get("materials", []):
+        mat.setdefault("pbrMetallicRoughness", {}).update(metallicFactor=0.0, roughnessFactor=1.0)
+    js = json.dumps(doc, separators=(",", ":")).encode()
+    js += b" " * (-len(js) % 4)
+    rest = glb[20 + n:]
+    return (struct.pack("<III", 0x46546C67, 2, 20 + len(js) + len(rest)) + struct.pack("<II", len(js), 0x4E4F534A)
+            + js + rest)
+
+
+def start_viewer_server(mesh: trimesh.Trimesh, cameras: list[View] | None = None,
+                        images: dict[str, Path] | None = None, host: str = "127.0.0.1", port: int = 8080,
+                        max_faces: int = VIEW_MAX_FACES, lighting: str = "environment"):
+    """A viser server showing ``mesh`` (decimated to ``max_faces``) and the ``cameras`` as frusta with their
+    images (``images``: view name -> image file) as thumbnails. Returns the running ``viser.ViserServer``
+    (``get_port()`` gives the bound port; ``stop()`` ends it)."""
+    try:
+        import viser
+    except ImportError:
+        from .errors import InputDataError
+
+        raise InputDataError("photorecon view needs the 'viser' package: pip install viser "
+                             "(or use 'photorecon view OUT --html FILE' for a standalone page)") from None
+    from .conventions import quat_from_rotation
+
+    shown = decimate_for_viewer(mesh, max_faces)
+    view = initial_view(shown, cameras)
+    logging.getLogger("websockets").setLevel(logging.WARNING)  # no line per connection
+    with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: the command prints its own URL line
+        server = viser.ViserServer(host=host, port=port, label="photorecon", verbose=False)
+    server.scene.set_up_direction(tuple(view["up"]))
+    server.initial_camera.fov = np.radians(view["fov_deg"])
+    server.initial_camera.look_at = tuple(view["target"])
+    server.initial_camera.up = tuple(view["up"])
+    server.initial_camera.position = tuple(initial_eye(view, 16, 9))
+    if lighting == "plain":
+        server.scene.configure_environment_map(hdri=None)
+    else:
+        server.scene.configure_environment_map(environment_intensity=0.8)
+    server.scene.configure_default_lights(enabled=True, cast_shadow=False)
+    server.scene.add_glb("/mesh", _matte_glb(shown), cast_shadow=False, receive_shadow=False)
+    scale = frustum_scale(view, cameras) if cameras else 1.0
+    for cam in cameras or []:
+        W, H = cam.intrinsics.size
+        world_from_cam = invert_rigid(cam.cam_from_world)
+        img = _thumbnail(images[cam.name]) if images and cam.name in images else None
+        server.scene.add_camera_frustum(
+            f"/cameras/{cam.name}", fov=2 * np.arctan2(H / 2, cam.intrinsics.fy), aspect=W / H,
+            scale=scale, thickness=0.02 * scale, color=(220, 40, 40), image=img,
+            wxyz=quat_from_rotation(world_from_cam[:3, :3]),
+            position=world_from_cam[:3, 3])
+    return server
+
+
+def stop_viewer_server(server) -> None:
+    with contextlib.redirect_stdout(io.StringIO()):  # viser's "Server stopped"
+        server.stop()
