@@ -51,3 +51,9 @@ class OutputError(PhotoreconError):
     """The output location cannot be used (not empty, inside the input, not writable)."""
 
     exit_code = 8
+
+
+class TextureError(PhotoreconError):
+    """Texturing is impossible: no view sees the mesh, or the atlas does not fit in memory or in its size."""
+
+    exit_code = 9
