@@ -564,9 +564,12 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     from .preview import render_preview
 
     tmp_preview = dest.with_name(f".{dest.name}.preview.png")
-    render_preview(res.mesh, tmp_preview, cameras=views)
-    export_textured(res.mesh, dest)
-    tmp_preview.replace(dest / "preview.png")
+    try:
+        render_preview(res.mesh, tmp_preview, cameras=views)
+        export_textured(res.mesh, dest)
+        tmp_preview.replace(dest / "preview.png")
+    finally:
+        tmp_preview.unlink(missing_ok=True)
     log.info("texture: %d faces, %d charts, %d views used, %.2f texels per pixel -> %s", res.info["faces"],
              res.info["charts"], res.info["views_used"], res.info["texels_per_pixel"], dest)
     return {**res.info, "folder": str(dest)}
