@@ -313,7 +313,8 @@ def _add_stage_args(p):
 
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
-                       ("fusion", d.fusion), ("cleaning", d.clean), ("metric scale", d.scale)):
+                       ("fusion", d.fusion), ("cleaning", d.clean), ("metric scale", d.scale),
+                       ("texture (with --texture)", d.texture)):
         add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg)
 
 
@@ -337,15 +338,21 @@ def _run_reconstruct(args):
     from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
     from .scale import ScaleConfig
     from .sfm import SfMConfig
+    from .texture import TextureConfig
 
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
                         config_from_args(MVSConfig, args), config_from_args(FusionConfig, args),
-                        config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args))
+                        config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args),
+                        config_from_args(TextureConfig, args))
     rep = run(args.images, args.out, cfgs, force=args.force, overwrite=args.overwrite)
     p, d, m = rep["poses"], rep["depth"], rep["mesh"]
     print(f"reconstruct: {p.get('registered')} images registered, {d.get('views')} depth maps ({d.get('source')}), "
           f"mesh {m.get('vertices')} vertices / {m.get('faces')} faces")
     print(f"  files: {args.out}/mesh.ply, preview.png, report.html, report.json")
+    if rep.get("texture"):
+        t = rep["texture"]
+        print(f"  textured: {t['faces']} faces, {t['atlas_size']}x{t['atlas_size']} atlas -> {args.out}/textured/"
+              "mesh.obj (+ mesh.mtl, texture.png), mesh.glb")
     if rep["warnings"]:
         print(f"  {len(rep['warnings'])} warning(s); see report.json")
     return 0
@@ -454,3 +461,39 @@ def _run_view(args):
             time.sleep(1.0)
     finally:
         stop_viewer_server(server)
+
+
+@command
+def texture(sub):
+    from .texture import TextureConfig
+
+    p = sub.add_parser("texture", help="bake a UV-textured mesh from the photos of a reconstruct output",
+                       description="Textures OUT/mesh.ply (or --mesh) from OUT/images with the cameras in OUT/sparse/0 "
+                                   "or OUT/transforms.json: one photo per face (visible, seen head-on, sharpest), "
+                                   "exposure evened out between photos, one atlas PNG. Writes OUT/textured/mesh.obj + "
+                                   "mesh.mtl + texture.png, mesh.glb (texture embedded) and preview.png (or -o DIR).")
+    p.add_argument("dataset", metavar="OUT", help="a reconstruct output (or any dataset folder with images and cameras)")
+    p.add_argument("--mesh", help="mesh to texture (default: OUT/mesh.ply)")
+    p.add_argument("-o", "--out", help="output folder (default: OUT/textured); replaced as a whole")
+    p.add_argument("--target-faces", dest="texture_faces", type=int, default=TextureConfig.texture_faces,
+                   help="simplify the mesh to about this many faces first (0 = keep; default: 0)")
+    add_config_arguments(p, TextureConfig, skip=("texture_faces",))
+    p.set_defaults(func=_run_texture)
+
+
+def _run_texture(args):
+    from pathlib import Path
+
+    from .errors import OutputError
+    from .texture import TextureConfig, check_config, texture_output
+
+    cfg = config_from_args(TextureConfig, args)
+    check_config(cfg)
+    dest = Path(args.out) if args.out else None
+    if dest is not None and dest.resolve() in (Path(args.dataset).resolve(), *Path(args.dataset).resolve().parents):
+        raise OutputError(f"-o {dest}: would replace the input folder; choose a new folder")
+    info = texture_output(args.dataset, cfg, args.mesh, dest)
+    print(f"texture: {info['faces']} faces, {info['charts']} charts from {info['views_used']} views, "
+          f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "
+          "texture.png), mesh.glb, preview.png")
+    return 0

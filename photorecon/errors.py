@@ -71,3 +71,9 @@ def from_os_error(exc: OSError, out=None) -> PhotoreconError:
     if inside_out or exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
         return OutputError(f"{name}: {what}; check the output folder's space and permissions")
     return InputDataError(f"{name}: {what}")
+
+
+class TextureError(PhotoreconError):
+    """Texturing is impossible: no view sees the mesh, or the atlas does not fit in memory or in its size."""
+
+    exit_code = 9

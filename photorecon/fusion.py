@@ -28,6 +28,7 @@ from numba import njit, prange
 from .cameras import View, backproject_depth, camera_center
 from .errors import BadArgumentError, EmptyMeshError, InputDataError, NoDepthError
 from .progress import bar
+from .resources import available_bytes
 
 log = logging.getLogger("photorecon")
 
@@ -109,14 +110,7 @@ def scene_diagonal(frames: list[DepthFrame], sparse_points: np.ndarray | None = 
 
 
 def _available_bytes() -> int:
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return 4 << 30
+    return available_bytes()
 
 
 def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:

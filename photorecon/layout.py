@@ -81,6 +81,11 @@ class Layout:
         return self.root / "preview_mesh.ply"
 
     @property
+    def textured(self) -> Path:
+        """``reconstruct --texture`` / ``photorecon texture``: mesh.obj + mesh.mtl + texture.png, mesh.glb."""
+        return self.root / "textured"
+
+    @property
     def report_json(self) -> Path:
         return self.root / "report.json"
 

@@ -10,6 +10,8 @@ OUT layout::
     OUT/mesh.ply, mesh.glb the cleaned, fused mesh
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
     OUT/preview_mesh.ply   the mesh decimated to <= 200k faces: report.html's 3D view
+    OUT/textured/          with --texture: mesh.obj + mesh.mtl + texture.png, mesh.glb (texture embedded),
+                           preview.png
     OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
     OUT/report.html        a self-contained page: an interactive 3D view of the mesh and cameras, the previews,
                            depth maps and numbers (photorecon.report)
@@ -44,6 +46,7 @@ from .scale import ScaleConfig
 from .sfm import SfMConfig
 from .layout import Layout
 from .stages import Stages, atomic_dir, fingerprint
+from .texture import TextureConfig
 
 log = logging.getLogger("photorecon")
 
@@ -58,6 +61,7 @@ class ReconstructConfig:
     depth_preset: str | None = field(default=None, metadata={"help": "preset for --depth-model (see 'photorecon depth --help')"})
     formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write (ply, obj, glb)"})
     masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or COLMAP's NAME.EXT.png (e.g. IMG_1.jpg.png) at the image's size, 0 = ignore the pixel (no features, depth or surface there); undistorted into OUT/masks. Without it the images' alpha channel is the mask"})
+    texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos: OUT/textured/mesh.obj (+ .mtl, texture.png) and mesh.glb"})
 
 
 @dataclass
@@ -69,6 +73,7 @@ class StageConfigs:
     fusion: FusionConfig = field(default_factory=lambda: FusionConfig(trunc_voxels=3.0))
     clean: CleanConfig = field(default_factory=CleanConfig)
     scale: ScaleConfig = field(default_factory=ScaleConfig)
+    texture: TextureConfig = field(default_factory=TextureConfig)
 
 
 def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
@@ -146,6 +151,10 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     if is_video and run.poses:
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
+    if run.texture:
+        from .texture import check_config
+
+        check_config(cfgs.texture)  # a bad --atlas-size fails before anything is written
     if run.depth != "mvs" and not Path(run.depth).is_dir():
         raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
     if run.depth_model:
@@ -241,6 +250,16 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats])
         stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh])
+
+        # 4. optional: a UV-textured mesh baked from the photos: OUT/textured/
+        if run.texture:
+            from .texture import texture_output
+
+            def texture() -> dict:
+                mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
+                return texture_output(out, cfgs.texture, mesh=mesh)
+
+            stages.run("texture", asdict(cfgs.texture), texture, outputs=[layout.textured])
     finally:
         log.removeHandler(handler)
     report = {
@@ -248,7 +267,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         "input": str(images), "output": str(out),
         "parameters": {k: asdict(v) for k, v in asdict_shallow(cfgs).items()},
         "stages": stages.stats, "poses": stages.info.get("poses", {}), "depth": stages.info.get("depth", {}),
-        "mesh": stages.info.get("fusion", {}), "warnings": warnings,
+        "mesh": stages.info.get("fusion", {}), "texture": stages.info.get("texture", {}), "warnings": warnings,
         "units": stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"),
     }
     atomic_write_json(layout.report_json, report)
@@ -258,7 +277,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
 def asdict_shallow(cfgs: StageConfigs) -> dict:
     return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean,
-            "scale": cfgs.scale}
+            "scale": cfgs.scale, "texture": cfgs.texture}
 
 
 class _WarningCollector(logging.Handler):

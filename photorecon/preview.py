@@ -40,7 +40,7 @@ def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
 
 def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] | None = None, n: int = 4,
                    size: int = 360, up=None) -> Path:
-    """Render ``mesh`` (vertex colours if any, else grey) from ``n`` viewpoints side by side, drawing the
+    """Render ``mesh`` (its texture unlit, else vertex colours if any, else grey) from ``n`` viewpoints side by side, drawing the
     ``cameras`` as frusta; write a PNG."""
     from .render import Renderer
 
@@ -51,7 +51,9 @@ def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] 
             if np.linalg.norm(ups) > 0.3:
                 up = tuple(ups / np.linalg.norm(ups))
     has_colors = mesh.visual.kind == "vertex" and np.asarray(mesh.visual.vertex_colors)[:, :3].std() > 1
-    r = Renderer(mesh, plain=not has_colors, background_color=(1.0, 1.0, 1.0), soft_light=has_colors)
+    textured = isinstance(mesh.visual, trimesh.visual.TextureVisuals) and mesh.visual.uv is not None
+    r = Renderer(mesh, plain=not (has_colors or textured), background_color=(1.0, 1.0, 1.0),
+                 soft_light=has_colors, unlit=textured)
     tiles = []
     diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
     centers = np.array([c.center for c in cameras]) if cameras else None

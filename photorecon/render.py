@@ -10,11 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import trimesh
 
 from .cameras import View, invert_rigid, project
+from .io.images import sample_bilinear
 from .mesh import raycasting_scene
 
 
@@ -85,9 +85,10 @@ class Appearance:
         if self.kind == "texture":
             uv = np.einsum("nk,nkc->nc", bary, self.uv[self.faces[tri]])
             h, w = self.image.shape[:2]
-            x = np.clip(np.mod(uv[:, 0], 1.0) * (w - 1), 0, w - 1).astype(np.float32)
-            y = np.clip((1 - np.mod(uv[:, 1], 1.0)) * (h - 1), 0, h - 1).astype(np.float32)
-            return cv2.remap(self.image, x[:, None], y[:, None], cv2.INTER_LINEAR)[:, 0]
+            # OBJ / glTF: v up, texel i's centre at (i + 0.5) / size
+            x = np.clip(np.mod(uv[:, 0], 1.0) * w - 0.5, 0, w - 1).astype(np.float32)
+            y = np.clip((1 - np.mod(uv[:, 1], 1.0)) * h - 0.5, 0, h - 1).astype(np.float32)
+            return sample_bilinear(self.image, np.stack([x, y], 1))
         if self.kind == "vertex":
             return np.einsum("nk,nkc->nc", bary.astype(np.float32), self.vcolors[self.faces[tri]])
         if self.plain:
@@ -111,11 +112,12 @@ LIGHT_DIR = np.array([0.4, -0.3, 0.85]) / np.linalg.norm([0.4, -0.3, 0.85])
 
 
 class Renderer:
-    """Ray-casts one mesh; ``render(view)`` gives RGB, z-depth, mask, triangle ids and normals."""
+    """Ray-casts one mesh; ``render(view)`` gives RGB, z-depth, mask, triangle ids and normals.
+    ``unlit``: colours as stored (texture or vertex colours baked from photos already hold their light)."""
 
     def __init__(self, mesh: trimesh.Trimesh, seed: int = 0, background: str = "color",
                  background_color=(0.08, 0.08, 0.1), backdrop_radius: float = 8.0, plain: bool = False,
-                 soft_light: bool = False):
+                 soft_light: bool = False, unlit: bool = False):
         import open3d as o3d
 
         self.mesh = mesh
@@ -128,7 +130,8 @@ class Renderer:
         self.background_color = np.asarray(background_color, np.float32)
         self.backdrop = SolidNoise(seed + 101, base_freq=1.5, octaves=4)
         self.backdrop_radius = backdrop_radius
-        self.ambient = 0.65 if soft_light else 0.35  # soft light for colours that already carry shading
+        # soft light for colours that already carry shading; none at all (unlit) for photo textures
+        self.ambient = 1.0 if unlit else 0.65 if soft_light else 0.35
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> dict:
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)

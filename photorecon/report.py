@@ -182,7 +182,7 @@ def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str
     mesh file. Returns (mesh, cameras, view name -> image file). Raises ``InputDataError`` (no mesh, a
     mesh without faces, unreadable cameras)."""
     from .errors import InputDataError
-    from .mesh import load
+    from .mesh import load_mesh
 
     path = Path(path)
     if path.is_dir():
@@ -194,11 +194,11 @@ def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str
         mesh_path = path
     else:
         raise InputDataError(f"{path}: no such result folder or mesh file")
-    mesh = load(mesh_path)  # InputDataError for an unreadable file or a mesh without faces
+    mesh = load_mesh(mesh_path)  # InputDataError for an unreadable file or a mesh without faces
     cameras = result_cameras(path) if path.is_dir() else []
     images = {}
     for v in cameras:
-        p = path / "images" / v.extra.get("image_file", v.name)
+        p = Layout(path).image(v.image_file or v.name)
         if p.is_file():
             images[v.name] = p
     return mesh, cameras, images
@@ -206,7 +206,7 @@ def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str
 
 def result_cameras(folder: Path) -> list[View]:
     """The cameras of a result folder (OUT/sparse/0 or OUT/transforms.json), or [] when it has none."""
-    if not ((folder / "sparse").is_dir() or (folder / "transforms.json").is_file()):
+    if not (Layout(folder).sparse.is_dir() or Layout(folder).transforms.is_file()):
         return []
     from .io.dataset import read_model
 
@@ -452,10 +452,10 @@ def _viewer_section(out: Path) -> str:
     path = Layout(out).viewer_mesh if Layout(out).viewer_mesh.is_file() else find_mesh(out)
     if path is None:
         return "<p>No mesh in this folder.</p>"
-    from .mesh import load
+    from .mesh import load_mesh
 
     try:
-        mesh = load(path)
+        mesh = load_mesh(path)
         cameras = result_cameras(out)
         return viewer_html(viewer_payload(mesh, cameras))
     except Exception as exc:  # the report's other contents still matter; say what went wrong

@@ -7,6 +7,18 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+def available_bytes() -> int:
+    """Memory the system can still give (Linux MemAvailable; 4 GB where unknown)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 4 << 30
+
+
 def reset_peak() -> bool:
     """Reset the process's peak resident set (Linux >= 4.0); False where unsupported."""
     try:

@@ -143,7 +143,7 @@ def wait_for(predicate, timeout: float, what: str):
 def expected_silhouette(mesh: trimesh.Trimesh, cameras, width: int, height: int) -> np.ndarray:
     """The mesh's mask from the viewer's first viewpoint, by ray casting (photorecon's own renderer)."""
     from photorecon.report import initial_eye, initial_view
-    from photorecon.synthetic import Renderer
+    from photorecon.render import Renderer
 
     v = initial_view(mesh, cameras)
     eye = initial_eye(v, width, height)

@@ -194,7 +194,7 @@ def _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
 
 
 @njit(cache=True, inline="always")
-def _geo_rays(GP, r0, r1, r2, gq):
+def _geo_rays(GP, r0, r1, r2, q):
     """q[j] = Kd_j R_j ray: the reference pixel's ray in source ``j``'s depth-map pixels (homogeneous), once per
     pixel; a hypothesis at depth d then projects to d q[j] + Ge[j]."""
     for j in range(GP.shape[0]):

@@ -202,3 +202,17 @@ def read_depth(path: str | Path, shape: tuple[int, int] | None = None, view: str
         raise InputDataError(f"view {name}: depth map {path} has {int(bad.sum())} NaN/inf and {int(neg.sum())} "
                              "negative values; use 0 for pixels without depth")
     return d
+
+
+def sample_bilinear(image: np.ndarray, pixels: np.ndarray, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+    """Bilinear samples (N, C) float32 of ``image`` (H, W[, C]) at ``pixels`` (N, 2) = (u, v) in OpenCV's pixel
+    convention (centre of the top-left pixel at (0, 0)). Any N (``cv2.remap`` takes maps < 32767 long)."""
+    p = np.asarray(pixels, np.float32).reshape(-1, 2)
+    n = len(p)
+    cols = 4096
+    rows = max(1, -(-n // cols))
+    pad = np.zeros((rows * cols, 2), np.float32)
+    pad[:n] = p
+    out = cv2.remap(image, pad[:, 0].reshape(rows, cols), pad[:, 1].reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=border)
+    return out.reshape(rows * cols, -1)[:n].astype(np.float32)

@@ -1,0 +1,576 @@
+"""UV-textured meshes from the photos: one view per face, exposure evened out, baked into one atlas.
+
+The steps (``texture_mesh``):
+
+1. **Which views see each face** (``face_view_quality``): a face counts as seen in a view when its centroid
+   projects inside the image (and its mask), all three corners are in front of the camera and inside the image,
+   it is not seen edge-on (``|cos| >= min_cos`` between its normal and the ray), and a ray from the camera
+   centre to the centroid hits nothing before it (a depth test against the mesh itself, Open3D
+   ``RaycastingScene``). The quality of a (face, view) pair is the face's projected area in pixels: it grows
+   with image resolution, falls with distance and with the viewing angle, all in one number.
+2. **One view per face** (``select_views``): the best view, then a few rounds of label smoothing over the
+   face adjacency (a Potts term: a face takes its neighbours' view unless its own is clearly better), so the
+   texture changes source at few seams.
+3. **Exposure** (``estimate_gains``): per-view, per-channel gains from the faces that several views see,
+   least squares in log space (``log colour = log gain[view] + log albedo[face]``, geometric mean gain 1).
+4. **Charts and atlas**: connected faces with the same view form a chart whose UVs are the faces' projections
+   into that view's image (no distortion, texel density = the photo's, as in Waechter et al., ECCV 2014);
+   overlapping charts of one view are merged, and the charts' rectangles are shelf-packed into a square
+   atlas at the largest common scale (<= 1 texel per photo pixel) that fits. Baking copies each rectangle
+   out of its (exposure-corrected) photo with ``padding`` texels of the photo's own pixels around it, so
+   bilinear filtering at chart borders sees real image content, not black.
+   Faces no view sees get a small flat-colour cell, coloured from their seen neighbours.
+
+Outputs (``export_textured``, written atomically into one folder): ``mesh.obj`` + ``mesh.mtl`` +
+``texture.png`` and ``mesh.glb`` with the texture embedded (PBR base colour). UVs follow the OBJ / glTF
+convention: ``u`` right, ``v`` up (row 0 of the PNG is ``v = 1``), texel centre ``i`` at ``(i + 0.5) / N``.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+import trimesh
+
+from .cameras import View, project
+from .errors import BadArgumentError, EmptyMeshError, TextureError
+from .io.images import sample_bilinear
+from .layout import Layout
+from .progress import bar
+from .resources import available_bytes
+
+log = logging.getLogger("photorecon")
+
+MAX_ATLAS = 65536
+TEXTURED_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.glb")
+
+
+@dataclass
+class TextureConfig:
+    """Settings of the texturing stage (``reconstruct --texture``, ``photorecon texture``)."""
+
+    atlas_size: int = field(default=4096, metadata={"help": "texture atlas width and height in texels"})
+    texture_faces: int = field(default=0, metadata={"help": "simplify the mesh to about this many faces before texturing (0 = keep it); a textured mesh needs far fewer faces than a vertex-coloured one"})
+    padding: int = field(default=2, metadata={"help": "texels of photo kept around every chart (against seams under bilinear filtering and mip-mapping)"})
+    min_cos: float = field(default=0.1, metadata={"help": "a view sees a face only if |cos(normal, ray)| >= this"})
+    smoothness: float = field(default=0.4, metadata={"help": "label smoothing: cost of a neighbour with another view, relative to a face's best-to-worst quality range"})
+    smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)"})
+    exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
+
+
+@dataclass
+class Textured:
+    mesh: trimesh.Trimesh  # with TextureVisuals (uv per vertex, material image = the atlas)
+    atlas: np.ndarray  # (N, N, 3) uint8
+    labels: np.ndarray  # (F,) view index per face of the input mesh, -1 = seen by no view
+    gains: np.ndarray  # (V, 3) per-view, per-channel gains the photos were divided by
+    info: dict
+
+
+def check_config(cfg: TextureConfig) -> None:
+    if not (256 <= cfg.atlas_size <= MAX_ATLAS):
+        raise BadArgumentError(f"--atlas-size: expected 256 to {MAX_ATLAS} texels, got {cfg.atlas_size}")
+    if cfg.padding < 0 or cfg.padding > 64:
+        raise BadArgumentError(f"--padding: expected 0 to 64 texels, got {cfg.padding}")
+    if not 0 <= cfg.min_cos < 1:
+        raise BadArgumentError(f"--min-cos: expected 0 <= value < 1, got {cfg.min_cos}")
+    if cfg.texture_faces and cfg.texture_faces < 4:
+        raise BadArgumentError(f"--texture-faces: expected 0 (keep) or >= 4, got {cfg.texture_faces}")
+
+
+def check_atlas_memory(atlas_size: int) -> None:
+    """Refuse an atlas that would not fit in memory: the atlas, its PNG encoding and the GLB's copy."""
+    need = atlas_size * atlas_size * 3 * 4
+    avail = available_bytes()
+    if need > avail:
+        raise TextureError(f"--atlas-size {atlas_size}: the atlas needs about {need / 2**30:.1f} GB of memory, "
+                           f"{avail / 2**30:.1f} GB are available; use a smaller --atlas-size (e.g. 4096 or 8192)")
+
+
+# --- 1. visibility and quality ----------------------------------------------------------------------------
+def face_view_quality(mesh: trimesh.Trimesh, views: list[View], masks: Callable[[View], np.ndarray | None] | None = None,
+                      min_cos: float = 0.1, scene=None) -> np.ndarray:
+    """(F, V) float32: the projected area in pixels of face f in view v where v sees f (see the module
+    docstring), else 0."""
+    from .mesh import raycasting_scene
+    import open3d as o3d
+
+    scene = scene or raycasting_scene(mesh)
+    V = np.asarray(mesh.vertices, np.float64)
+    F = np.asarray(mesh.faces, np.int64)
+    cent = V[F].mean(1)
+    normals = np.asarray(mesh.face_normals, np.float64)
+    size = np.linalg.norm(V[F] - V[np.roll(F, 1, axis=1)], axis=2).max(1)  # longest edge
+    q = np.zeros((len(F), len(views)), np.float32)
+    for k, view in enumerate(bar(views, desc="texture: visibility")):
+        W, H = view.intrinsics.size
+        uv, z = project(V, view.intrinsics, view.cam_from_world)
+        tri = uv[F]  # (F, 3, 2)
+        with np.errstate(invalid="ignore"):
+            ok = np.all(z[F] > 0, 1) & np.all((tri[..., 0] >= 0) & (tri[..., 0] <= W - 1)
+                                              & (tri[..., 1] >= 0) & (tri[..., 1] <= H - 1), 1)
+        ray = cent - view.center
+        dist = np.linalg.norm(ray, axis=1)
+        cos = np.abs(np.einsum("fc,fc->f", normals, ray)) / np.maximum(dist, 1e-300)
+        ok &= cos >= min_cos
+        mask = masks(view) if masks else None
+        if mask is not None and ok.any():
+            c_uv = tri[ok].mean(1)
+            inside = mask[np.clip(np.round(c_uv[:, 1]).astype(int), 0, H - 1), np.clip(np.round(c_uv[:, 0]).astype(int), 0, W - 1)]
+            ok[np.flatnonzero(ok)[~inside]] = False
+        idx = np.flatnonzero(ok)
+        if not len(idx):
+            continue
+        e1, e2 = tri[idx, 1] - tri[idx, 0], tri[idx, 2] - tri[idx, 0]
+        area = np.maximum(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]), 1e-6)
+        # the depth test at the centroid; faces larger than 64 px also at 6 more points (the fraction seen
+        # scales their quality, so a big face partly hidden in every view still gets its best view)
+        big = area > 64
+        pts = [cent[idx]] + [V[F[idx[big], c]] * w + cent[idx[big]] * (1 - w) for w in (0.6,) for c in range(3)] \
+            + [(V[F[idx[big], c]] + V[F[idx[big], (c + 1) % 3]]) * 0.3 + cent[idx[big]] * 0.4 for c in range(3)]
+        which = np.concatenate([np.arange(len(idx))] + [np.flatnonzero(big)] * 6)
+        d = np.concatenate(pts) - view.center
+        rays = np.concatenate([np.broadcast_to(view.center, d.shape), d], 1).astype(np.float32)
+        t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        # the first surface hit is the face itself, or lies within half the face's size of it (a neighbour
+        # bulging over a face seen at a slant, a decimation fold: not an occluder)
+        tol = np.maximum(1e-3, 0.5 * size[idx] / dist[idx])[which]
+        hit = np.abs(t - 1.0) < tol
+        frac = np.bincount(which, hit, minlength=len(idx)) / np.bincount(which, minlength=len(idx))
+        q[idx, k] = np.where(frac > 0, area * frac, 0)
+    return q
+
+
+# --- 2. one view per face ---------------------------------------------------------------------------------
+def select_views(quality: np.ndarray, adjacency: np.ndarray, smoothness: float = 0.4, rounds: int = 6,
+                 seed: int = 0) -> np.ndarray:
+    """(F,) view index per face (-1 where no view sees it): the best quality, smoothed over ``adjacency``
+    ((E, 2) face pairs) by iterated conditional modes on ``1 - q / max q`` + ``smoothness`` x (neighbours with
+    another view); half the faces, drawn at random, move per round (no two-face oscillation)."""
+    F, V = quality.shape
+    best = quality.max(1)
+    seen = best > 0
+    labels = np.where(seen, quality.argmax(1), -1)
+    if rounds <= 0 or not len(adjacency) or V < 2:
+        return labels
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unary = np.where(quality > 0, 1.0 - quality / best[:, None], np.inf).astype(np.float32)
+    a, b = np.asarray(adjacency, np.int64).T
+    deg = np.bincount(np.r_[a, b], minlength=F).astype(np.float32)
+    rng = np.random.default_rng(seed)
+    for _ in range(rounds):
+        same = np.zeros(F * V, np.float32)
+        for x, y in ((a, b), (b, a)):
+            ly = labels[y]
+            m = ly >= 0
+            same += np.bincount(x[m] * V + ly[m], minlength=F * V).astype(np.float32)
+        cost = unary + smoothness * (deg[:, None] - same.reshape(F, V))
+        new = np.where(seen, cost.argmin(1), -1)
+        move = rng.random(F) < 0.5
+        labels = np.where(move, new, labels)
+    return labels
+
+
+# --- 3. exposure --------------------------------------------------------------------------------------------
+def solve_gains(face: np.ndarray, view: np.ndarray, colors: np.ndarray, n_views: int, iterations: int = 50) -> np.ndarray:
+    """Per-view, per-channel gains (V, 3) from observations ``colors`` (N, 3) of faces ``face`` (N,) in
+    views ``view`` (N,): least squares on ``log c = log g[view] + log a[face]`` (alternating, then once
+    more without observations whose residual exceeds 3 MADs), with the mean of log g = 0 over views that
+    have observations; views without any get 1."""
+    gains = np.ones((n_views, 3))
+    if not len(face):
+        return gains
+    _, f = np.unique(face, return_inverse=True)
+    nf = f.max() + 1
+    for c in range(3):
+        L = np.log(np.clip(colors[:, c], 1.0, None) / 255.0)
+        keep = (colors[:, c] > 4) & (colors[:, c] < 251)  # no dark noise, no clipped highlights
+        for trim in range(2):
+            ff, vv, LL = f[keep], view[keep], L[keep]
+            nv_obs = np.bincount(vv, minlength=n_views)
+            nf_obs = np.maximum(np.bincount(ff, minlength=nf), 1)
+            g = np.zeros(n_views)
+            for _ in range(iterations):
+                a = np.bincount(ff, LL - g[vv], minlength=nf) / nf_obs
+                g = np.bincount(vv, LL - a[ff], minlength=n_views) / np.maximum(nv_obs, 1)
+                g[nv_obs > 0] -= g[nv_obs > 0].mean()
+            if trim == 0:
+                r = L - g[view] - a[f]
+                resid = r[keep]
+                mad = np.median(np.abs(resid - np.median(resid))) + 1e-6
+                keep = keep & (np.abs(r) < 3 * 1.4826 * mad + 0.02)
+        gains[:, c] = np.exp(g)
+    return gains
+
+
+def estimate_gains(images: Callable[[int], np.ndarray], views: list[View], mesh: trimesh.Trimesh,
+                   quality: np.ndarray, max_faces: int = 20000, seed: int = 0) -> np.ndarray:
+    """Per-view gains (V, 3) from the colours of faces that >= 2 views see (at most ``max_faces`` of them),
+    each sampled at its centroid in a lightly blurred photo (so views at other resolutions agree)."""
+    multi = np.flatnonzero((quality > 0).sum(1) >= 2)
+    if not len(multi):
+        return np.ones((len(views), 3))
+    rng = np.random.default_rng(seed)
+    if len(multi) > max_faces:
+        multi = np.sort(rng.choice(multi, max_faces, replace=False))
+    cent = np.asarray(mesh.vertices)[np.asarray(mesh.faces)[multi]].mean(1)
+    fs, vs, cs = [], [], []
+    for k, view in enumerate(bar(views, desc="texture: exposure")):
+        sel = quality[multi, k] > 0
+        if not sel.any():
+            continue
+        img = cv2.GaussianBlur(images(k), (0, 0), 1.5)
+        uv, _ = project(cent[sel], view.intrinsics, view.cam_from_world)
+        fs.append(multi[sel])
+        vs.append(np.full(int(sel.sum()), k))
+        cs.append(sample_bilinear(img, uv))
+    if not fs:
+        return np.ones((len(views), 3))
+    return solve_gains(np.concatenate(fs), np.concatenate(vs), np.concatenate(cs), len(views))
+
+
+# --- 4. charts, packing, baking -----------------------------------------------------------------------------
+def _merge_boxes(boxes: np.ndarray, margin: float) -> np.ndarray:
+    """Group index per box: boxes (n, 4) ``x0 y0 x1 y1`` that overlap (within ``margin``) share a group,
+    transitively, also through the union boxes of groups (repeated until nothing changes)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    group = np.arange(len(boxes))
+    cur = boxes.copy()
+    while len(cur) > 1:
+        lo, hi = cur[:, :2] - margin, cur[:, 2:] + margin
+        ov = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
+        i, j = np.nonzero(np.triu(ov, 1))
+        if not len(i):
+            break
+        n, comp = connected_components(coo_matrix((np.ones(len(i)), (i, j)), shape=(len(cur), len(cur))), directed=False)
+        new = np.empty((n, 4))
+        new[:, :2] = np.inf
+        new[:, 2:] = -np.inf
+        np.minimum.at(new[:, 0], comp, cur[:, 0])
+        np.minimum.at(new[:, 1], comp, cur[:, 1])
+        np.maximum.at(new[:, 2], comp, cur[:, 2])
+        np.maximum.at(new[:, 3], comp, cur[:, 3])
+        group = comp[group]
+        cur = new
+    return group
+
+
+def shelf_pack(sizes: np.ndarray, width: int) -> tuple[np.ndarray, int]:
+    """Place rectangles ``sizes`` (n, 2) = (w, h) in rows ("shelves") of ``width``, tallest first.
+    Returns their top-left corners (n, 2) and the total height used."""
+    order = np.argsort(-sizes[:, 1], kind="stable")
+    pos = np.zeros((len(sizes), 2), np.int64)
+    x = y = row_h = 0
+    for i in order:
+        w, h = int(sizes[i, 0]), int(sizes[i, 1])
+        if w > width:
+            return pos, np.iinfo(np.int64).max
+        if x + w > width:
+            y += row_h
+            x = row_h = 0
+        pos[i] = (x, y)
+        x += w
+        row_h = max(row_h, h)
+    return pos, y + row_h
+
+
+@dataclass
+class _Charts:
+    rect_view: np.ndarray  # (R,) view of each rectangle
+    rect_box: np.ndarray  # (R, 4) x0 y0 x1 y1 in the view's photo pixels
+    face_rect: np.ndarray  # (F,) rectangle of each face, -1 = unseen
+    corner_px: np.ndarray  # (F, 3, 2) face corners in their view's photo pixels (NaN for unseen faces)
+
+
+def make_charts(mesh: trimesh.Trimesh, views: list[View], labels: np.ndarray, adjacency: np.ndarray,
+                merge_margin: float = 3.0) -> _Charts:
+    """Charts: connected faces with one view; their projections' boxes in that view, overlapping boxes of a
+    view merged into one rectangle."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(mesh.faces, np.int64)
+    V = np.asarray(mesh.vertices, np.float64)
+    corner = np.full((len(F), 3, 2), np.nan)
+    for k, view in enumerate(views):
+        sel = np.flatnonzero(labels == k)
+        if len(sel):
+            used, inv = np.unique(F[sel], return_inverse=True)
+            uv, _ = project(V[used], view.intrinsics, view.cam_from_world)
+            corner[sel] = uv[inv.reshape(-1, 3)]
+    a, b = np.asarray(adjacency, np.int64).reshape(-1, 2).T
+    same = (labels[a] == labels[b]) & (labels[a] >= 0)
+    n, comp = connected_components(coo_matrix((np.ones(int(same.sum())), (a[same], b[same])),
+                                              shape=(len(F), len(F))), directed=False)
+    seen = labels >= 0
+    comp_view = np.full(n, -1)
+    comp_view[comp[seen]] = labels[seen]
+    box = np.empty((n, 4))
+    box[:, :2] = np.inf
+    box[:, 2:] = -np.inf
+    cs = comp[seen]
+    np.minimum.at(box[:, 0], cs, corner[seen, :, 0].min(1))
+    np.minimum.at(box[:, 1], cs, corner[seen, :, 1].min(1))
+    np.maximum.at(box[:, 2], cs, corner[seen, :, 0].max(1))
+    np.maximum.at(box[:, 3], cs, corner[seen, :, 1].max(1))
+    rect_of_comp = np.full(n, -1)
+    rect_view, rect_box = [], []
+    for k in range(len(views)):
+        cids = np.flatnonzero(comp_view == k)
+        if not len(cids):
+            continue
+        g = _merge_boxes(box[cids], merge_margin)
+        ng = g.max() + 1
+        gb = np.empty((ng, 4))
+        gb[:, :2] = np.inf
+        gb[:, 2:] = -np.inf
+        np.minimum.at(gb[:, 0], g, box[cids, 0])
+        np.minimum.at(gb[:, 1], g, box[cids, 1])
+        np.maximum.at(gb[:, 2], g, box[cids, 2])
+        np.maximum.at(gb[:, 3], g, box[cids, 3])
+        rect_of_comp[cids] = len(rect_view) + g
+        rect_view.extend([k] * ng)
+        rect_box.extend(gb)
+    face_rect = np.where(seen, rect_of_comp[comp], -1)
+    return _Charts(np.array(rect_view, np.int64), np.array(rect_box).reshape(-1, 4), face_rect, corner)
+
+
+def _rect_layout(box: np.ndarray, scale: float, pad: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per rectangle: the scaled photo's first texel it copies (ox, oy) and its size (w, h) in texels."""
+    lo = np.floor((box[:, :2] + 0.5) * scale - 0.5) - pad
+    hi = np.ceil((box[:, 2:] + 0.5) * scale - 0.5) + pad
+    return lo, (hi - lo + 1).astype(np.int64)
+
+
+def pack_charts(charts: _Charts, atlas_size: int, pad: int, extra: tuple[int, int] | None = None):
+    """The largest scale (<= 1 atlas texel per photo pixel) at which every rectangle (plus an ``extra``
+    fixed-size one, for unseen faces) fits in the atlas. Returns (scale, corners (R[+1], 2), origins, sizes)."""
+    def attempt(s):
+        o, sz = _rect_layout(charts.rect_box, s, pad)
+        if extra is not None:
+            sz = np.vstack([sz, [extra]])
+        pos, h = shelf_pack(sz, atlas_size)
+        return pos, o, sz, h <= atlas_size
+
+    pos, o, sz, fits = attempt(1.0)
+    if fits:
+        return 1.0, pos, o, sz
+    lo, hi = 0.0, 1.0
+    best = None
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        res = attempt(mid)
+        if res[3]:
+            lo, best = mid, (mid,) + res[:3]
+        else:
+            hi = mid
+    if best is None or best[0] < 1e-3:
+        raise TextureError(f"the mesh's {len(charts.rect_box)} texture charts do not fit in a {atlas_size}x{atlas_size} "
+                           "atlas; use a larger --atlas-size or fewer faces (--texture-faces)")
+    return best
+
+
+def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int], np.ndarray],
+                 cfg: TextureConfig | None = None, masks: Callable[[View], np.ndarray | None] | None = None) -> Textured:
+    """Texture ``mesh`` from ``views`` (``images(k)``: the k-th view's photo, (H, W, 3) uint8, at its camera's
+    size). Raises ``EmptyMeshError`` for a mesh without faces, ``TextureError`` when no view sees the mesh."""
+    cfg = cfg or TextureConfig()
+    check_config(cfg)
+    if mesh is None or not len(mesh.faces):
+        raise EmptyMeshError("the mesh has no faces: nothing to texture")
+    if not views:
+        raise TextureError("no cameras: texturing needs the views the mesh was made from")
+    check_atlas_memory(cfg.atlas_size)
+    faces_in = len(mesh.faces)
+    if cfg.texture_faces and faces_in > cfg.texture_faces:
+        from .mesh import simplify
+
+        mesh = simplify(mesh, cfg.texture_faces)
+        log.info("texture: mesh simplified from %d to %d faces", faces_in, len(mesh.faces))
+    mesh = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
+    adjacency = np.asarray(mesh.face_adjacency, np.int64).reshape(-1, 2)
+    q = face_view_quality(mesh, views, masks, cfg.min_cos)
+    per_view = (q > 0).sum(0)
+    if not per_view.any():
+        raise TextureError(f"none of the {len(views)} views sees the mesh (faces {len(mesh.faces)}): check that the "
+                           "cameras and the mesh are in the same frame (same reconstruction)")
+    blind = [views[k].name for k in np.flatnonzero(per_view == 0)]
+    if blind:
+        log.warning("texture: %d view(s) see none of the mesh: %s", len(blind), ", ".join(blind[:10]))
+    labels = select_views(q, adjacency, cfg.smoothness, cfg.smooth_rounds)
+    gains = estimate_gains(images, views, mesh, q) if cfg.exposure else np.ones((len(views), 3))
+    charts = make_charts(mesh, views, labels, adjacency)
+    unseen = np.flatnonzero(labels < 0)
+    cell = 4
+    n_cols = int(np.ceil(np.sqrt(len(unseen)))) if len(unseen) else 0
+    extra = (n_cols * cell, int(np.ceil(len(unseen) / max(n_cols, 1))) * cell) if len(unseen) else None
+    N, pad = cfg.atlas_size, cfg.padding
+    scale, pos, origin, size = pack_charts(charts, N, pad, extra)
+    if scale < 0.3:
+        log.warning("texture: the atlas holds the photos at %.2f texels per pixel; a larger --atlas-size or fewer "
+                    "faces (--texture-faces) keep more detail", scale)
+
+    atlas = np.zeros((N, N, 3), np.uint8)
+    face_color = np.full((len(mesh.faces), 3), np.nan, np.float32)
+    F = np.asarray(mesh.faces)
+    cent = np.asarray(mesh.vertices)[F].mean(1)
+    for k, view in enumerate(bar(views, desc="texture: bake")):
+        rects = np.flatnonzero(charts.rect_view == k)
+        if not len(rects):
+            continue
+        img = images(k)
+        src = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1 else img
+        g = (1.0 / gains[k]).astype(np.float32)
+        for r in rects:
+            (x, y), (ox, oy), (w, h) = pos[r], origin[r], size[r]
+            M = np.array([[1.0, 0, ox], [0, 1.0, oy]])
+            patch = cv2.warpAffine(src, M, (int(w), int(h)), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                   borderMode=cv2.BORDER_REPLICATE)
+            atlas[y:y + h, x:x + w] = np.clip(patch.astype(np.float32) * g + 0.5, 0, 255).astype(np.uint8)
+        sel = np.flatnonzero(labels == k)
+        uv, _ = project(cent[sel], view.intrinsics, view.cam_from_world)
+        face_color[sel] = sample_bilinear(img, uv) * g
+
+    # UVs: seen corners from their photo position; unseen faces: a flat cell each
+    fr = charts.face_rect
+    seen = fr >= 0
+    uv_corner = np.zeros((len(F), 3, 2))
+    if seen.any():
+        r = fr[seen][:, None]
+        tex = (charts.corner_px[seen] + 0.5) * scale - 0.5 - origin[r] + pos[r]  # atlas texel coordinates
+        uv_corner[seen] = tex
+    if len(unseen):
+        face_color[unseen] = _propagate_colors(face_color, adjacency)[unseen]
+        ex, ey = pos[-1]
+        i = np.arange(len(unseen))
+        cx, cy = ex + (i % n_cols) * cell + cell / 2 - 0.5, ey + (i // n_cols) * cell + cell / 2 - 0.5
+        for dx, dy, c in ((-0.5, -0.5, 0), (0.5, -0.5, 1), (0.0, 0.5, 2)):
+            uv_corner[unseen, c] = np.stack([cx + dx, cy + dy], 1)
+        for k, fidx in enumerate(unseen):
+            x0, y0 = ex + (k % n_cols) * cell, ey + (k // n_cols) * cell
+            atlas[y0:y0 + cell, x0:x0 + cell] = np.clip(face_color[fidx] + 0.5, 0, 255).astype(np.uint8)
+    # one output vertex per (vertex, rectangle); unseen faces get their own three
+    key_rect = np.where(seen[:, None], fr[:, None], -2 - np.arange(len(F))[:, None])
+    keys = np.stack([F, np.broadcast_to(key_rect, F.shape)], -1).reshape(-1, 2)
+    _, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    new_faces = inv.reshape(-1, 3)
+    new_vertices = np.asarray(mesh.vertices)[F.reshape(-1)[first]]
+    tex = uv_corner.reshape(-1, 2)[first]
+    uv = np.stack([(tex[:, 0] + 0.5) / N, 1.0 - (tex[:, 1] + 0.5) / N], 1)
+    from PIL import Image
+
+    material = trimesh.visual.material.PBRMaterial(name="photorecon_texture", baseColorTexture=Image.fromarray(atlas),
+                                                   metallicFactor=0.0, roughnessFactor=1.0)
+    out = trimesh.Trimesh(new_vertices, new_faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=material),
+                          process=False)
+    info = {"faces": int(len(mesh.faces)), "faces_in": int(faces_in), "vertices": int(len(new_vertices)),
+            "views_used": int(len(np.unique(labels[labels >= 0]))), "views_blind": blind,
+            "unseen_faces": int(len(unseen)), "charts": int(len(charts.rect_box)), "atlas_size": N,
+            "texels_per_pixel": round(float(scale), 4),
+            "gains": {views[k].name: [round(float(x), 4) for x in gains[k]] for k in range(len(views))}}
+    return Textured(out, atlas, labels, gains, info)
+
+
+def _propagate_colors(color: np.ndarray, adjacency: np.ndarray, max_rounds: int = 10000) -> np.ndarray:
+    """Fill NaN rows of ``color`` (F, 3) with the mean of their known neighbours, ring by ring; grey where a
+    component has no known face."""
+    color = color.copy()
+    known = ~np.isnan(color[:, 0])
+    a, b = adjacency.T if len(adjacency) else (np.zeros(0, int), np.zeros(0, int))
+    x, y = np.r_[a, b], np.r_[b, a]
+    for _ in range(max_rounds):
+        if known.all():
+            break
+        m = known[y] & ~known[x]
+        if not m.any():
+            break
+        cnt = np.bincount(x[m], minlength=len(color))
+        acc = np.stack([np.bincount(x[m], color[y[m], c], minlength=len(color)) for c in range(3)], 1)
+        new = (cnt > 0) & ~known
+        color[new] = acc[new] / cnt[new, None]
+        known |= new
+    color[~known] = 128.0
+    return color
+
+
+# --- export ---------------------------------------------------------------------------------------------------
+def export_textured(mesh: trimesh.Trimesh, folder: str | Path) -> Path:
+    """Write ``folder``/mesh.obj + mesh.mtl + texture.png and mesh.glb (texture embedded), all or nothing
+    (a temporary folder renamed onto ``folder``)."""
+    from PIL import Image
+
+    from .stages import atomic_dir
+
+    folder = Path(folder)
+    img = mesh.visual.material.baseColorTexture
+    simple = trimesh.visual.material.SimpleMaterial(image=img, name="photorecon_texture", diffuse=(255, 255, 255, 255))
+    obj_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
+                               visual=trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=simple))
+    with atomic_dir(folder) as tmp:
+        text, files = trimesh.exchange.obj.export_obj(obj_mesh, include_normals=False, include_texture=True,
+                                                      return_texture=True, mtl_name="mesh.mtl")
+        # one texture named texture.png, whatever trimesh called it
+        pngs = [n for n in files if n.lower().endswith((".png", ".jpg", ".jpeg"))]
+        mtl = files["mesh.mtl"].decode()
+        for n in pngs:
+            mtl = mtl.replace(n, "texture.png")
+        (tmp / "mesh.obj").write_text(text)
+        (tmp / "mesh.mtl").write_text(mtl)
+        Image.fromarray(np.asarray(img.convert("RGB"))).save(tmp / "texture.png", optimize=False, compress_level=3)
+        (tmp / "mesh.glb").write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh)))
+    return folder
+
+
+def load_textured(path: str | Path) -> trimesh.Trimesh:
+    """A textured OBJ or GLB as one ``Trimesh`` with ``TextureVisuals`` (no processing)."""
+    from .mesh import load_mesh
+
+    return load_mesh(path)
+
+
+# --- the stage on a reconstruct output folder -------------------------------------------------------------------
+def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path: str | Path | None = None,
+                   dest: str | Path | None = None, mesh: trimesh.Trimesh | None = None) -> dict:
+    """Texture a reconstruct output folder ``out`` (its cameras in sparse/0 or transforms.json, photos in
+    images/, masks in masks/): the mesh ``mesh_path`` (default ``out``/mesh.ply) or ``mesh`` -> ``dest``
+    (default ``out``/textured/) with mesh.obj, mesh.mtl, texture.png, mesh.glb and preview.png. Returns facts
+    for the report."""
+    from .io.dataset import Dataset
+    from .mesh import load_mesh
+
+    cfg = cfg or TextureConfig()
+    check_config(cfg)
+    out = Path(out)
+    ds = Dataset.open(out)
+    if mesh is None:
+        mesh_path = Path(mesh_path) if mesh_path else Layout(out).mesh("ply")
+        mesh = load_mesh(mesh_path)
+    views = ds.views
+
+    def images(k):
+        return ds.image(views[k])
+
+    def masks(view):
+        return ds.mask(view)
+
+    res = texture_mesh(mesh, views, images, cfg, masks)
+    dest = Path(dest) if dest else Layout(out).textured
+    from .preview import render_preview
+
+    tmp_preview = dest.with_name(f".{dest.name}.preview.png")
+    try:
+        render_preview(res.mesh, tmp_preview, cameras=views)
+        export_textured(res.mesh, dest)
+        tmp_preview.replace(dest / "preview.png")
+    finally:
+        tmp_preview.unlink(missing_ok=True)
+    log.info("texture: %d faces, %d charts, %d views used, %.2f texels per pixel -> %s", res.info["faces"],
+             res.info["charts"], res.info["views_used"], res.info["texels_per_pixel"], dest)
+    return {**res.info, "folder": str(dest)}

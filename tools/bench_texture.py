@@ -1,0 +1,190 @@
+#!/usr/bin/env python
+"""Benchmark of texturing: fidelity on synthetic scenes and time.
+
+Fidelity: ``photorecon synth`` renders a scene (sphere rig, 640x480); its true depth maps are fused (TSDF, true
+poses) into a vertex-coloured mesh, decimated to ``--faces`` faces (Open3D carries the vertex colours); the same
+decimated mesh is textured from the same photos. Both are rendered *unlit* (their colours are the photos' own)
+from held-out views that texturing never used (a ring at 35 degrees elevation between the rig's cameras) and
+compared with the true renders: PSNR over the object's pixels (the truth's mask). Scenes: blob, room and the
+Stanford bunny (``../shared/data/stanford-bunny/bun_zipper_res2.ply``, if present). A second row per scene
+uses the true surface (subdivided to at least ``--faces`` faces) with vertex colours averaged from the photos,
+to separate texture from geometry error. Target: textured >= vertex-coloured + 3 dB.
+
+Time: texturing 30 views of 640x480 and a 300k-face mesh (the blob's fused mesh decimated), end to end
+(visibility, view selection, exposure, charts, baking, export of OBJ/MTL/PNG + GLB). Target <= 30 s on 2 cores.
+
+    python tools/bench_texture.py [--views 30] [--faces 30000] [--json out.json] [--only fidelity|time]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from photorecon import progress
+from photorecon.fusion import FusionConfig, fuse, load_frames
+from photorecon.io.dataset import Dataset
+from photorecon.mesh import CleanConfig, clean, simplify
+from photorecon.resources import peak_bytes, reset_peak
+from photorecon.render import Renderer
+from photorecon.synthetic import SynthConfig, make_views, synthesize
+from photorecon.texture import TextureConfig, export_textured, texture_mesh
+
+_REPO = Path(__file__).resolve().parents[1]
+BUNNY = next((p for p in (_REPO / "../shared/data", _REPO / "../../shared/data", Path("/work/shared/data"))
+              if (p / "stanford-bunny/bun_zipper_res2.ply").is_file()), _REPO / "../shared/data") \
+    / "stanford-bunny/bun_zipper_res2.ply"
+
+
+def psnr(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
+    err = (pred[mask].astype(np.float64) - truth[mask].astype(np.float64)) ** 2
+    return float(10 * np.log10(255.0 ** 2 / max(err.mean(), 1e-12)))
+
+
+def held_out_views(cfg: SynthConfig, n: int = 8):
+    """A ring at 35 degrees elevation, turned by half a step: none of these is a texturing view."""
+    return make_views(SynthConfig(rig="ring", views=n, elevation=35.0, radius=cfg.radius, width=cfg.width,
+                                  height=cfg.height, fov=cfg.fov, up=cfg.up, jitter_deg=2.0, seed=cfg.seed + 99))
+
+
+def fused_mesh(root: Path) -> tuple[trimesh.Trimesh, Dataset]:
+    ds = Dataset.open(root)
+    # every component kept: the room's sphere touches the floor at one point and would go as a small component
+    return clean(fuse(load_frames(ds, FusionConfig()), FusionConfig(), ds.model.points),
+                 CleanConfig(min_component=0.0)), ds
+
+
+def texture_dataset(mesh: trimesh.Trimesh, ds: Dataset, cfg: TextureConfig):
+    views = ds.views
+    return texture_mesh(mesh, views, lambda k: ds.image(views[k]), cfg, ds.mask)
+
+
+def subdivided_truth(gt: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
+    """The true surface with at least ``faces`` faces (edges halved until there are enough)."""
+    v, f = np.asarray(gt.vertices), np.asarray(gt.faces)
+    edge = float(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1).max())
+    while len(f) < faces:
+        edge /= 1.5
+        v, f = trimesh.remesh.subdivide_to_size(np.asarray(gt.vertices), np.asarray(gt.faces), edge)
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def photo_vertex_colors(mesh: trimesh.Trimesh, ds: Dataset) -> trimesh.Trimesh:
+    """The mesh with vertex colours from the photos: each vertex's mean colour over the views that see it."""
+    from photorecon.io.images import sample_bilinear
+
+    r = Renderer(mesh)
+    V = np.asarray(mesh.vertices)
+    acc, n = np.zeros((len(V), 3)), np.zeros(len(V))
+    for view in ds.views:
+        vis, uv = r.visible(V, view, np.asarray(mesh.vertex_normals), rel_tol=2e-3, min_cos=0.1)
+        acc[vis] += sample_bilinear(ds.image(view), uv[vis])
+        n[vis] += 1
+    col = np.where(n[:, None] > 0, acc / np.maximum(n, 1)[:, None], 128)
+    return trimesh.Trimesh(V, mesh.faces, vertex_colors=np.clip(col + 0.5, 0, 255).astype(np.uint8), process=False)
+
+
+def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int) -> list[dict]:
+    """Two rows: the fused mesh (TSDF of the true depth, decimated, its own vertex colours) and the true surface
+    (subdivided, vertex colours averaged from the photos), each textured too."""
+    root = tmp / name
+    synthesize(cfg, root, overwrite=True)
+    full, ds = fused_mesh(root)
+    gt = trimesh.load(root / "gt_mesh.ply", process=False)
+    truth_r = Renderer(gt, cfg.seed, cfg.background)
+    held = held_out_views(cfg)
+    truths = [truth_r.render(v) for v in held]
+    rows = []
+    for geometry, mesh in (("fused", simplify(full, faces)), ("true", photo_vertex_colors(subdivided_truth(gt, faces), ds))):
+        t0 = time.perf_counter()
+        tex = texture_dataset(mesh, ds, TextureConfig(atlas_size=atlas))
+        secs = time.perf_counter() - t0
+        r_tex, r_vc = Renderer(tex.mesh, unlit=True), Renderer(mesh, unlit=True)
+        p_tex = [psnr(r_tex.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]
+        p_vc = [psnr(r_vc.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]
+        row = {"scene": name, "geometry": geometry, "views": cfg.views, "size": f"{cfg.width}x{cfg.height}",
+               "faces": len(mesh.faces), "psnr_textured": float(np.mean(p_tex)), "psnr_vertex": float(np.mean(p_vc)),
+               "gain_db": float(np.mean(p_tex) - np.mean(p_vc)), "texture_seconds": secs,
+               "charts": tex.info["charts"], "texels_per_pixel": tex.info["texels_per_pixel"],
+               "unseen_faces": tex.info["unseen_faces"]}
+        if geometry == "fused":
+            r_full = Renderer(full, unlit=True)
+            row["psnr_vertex_full"] = float(np.mean([psnr(r_full.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]))
+            row["full_faces"] = len(full.faces)
+        rows.append(row)
+    return rows
+
+
+def timing(views: int, faces: int, tmp: Path, atlas: int) -> dict:
+    root = tmp / "time_blob"
+    synthesize(SynthConfig(scene="blob", views=views, width=640, height=480), root, overwrite=True)
+    full, ds = fused_mesh(root)
+    mesh = simplify(full, faces)
+    stages = {}
+    reset_peak()
+    c0 = time.process_time()
+    t0 = time.perf_counter()
+    tex = texture_dataset(mesh, ds, TextureConfig(atlas_size=atlas))
+    stages["texture"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    export_textured(tex.mesh, tmp / "time_out")
+    stages["export"] = time.perf_counter() - t1
+    total = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    return {"views": views, "size": "640x480", "faces": len(mesh.faces), "atlas": atlas,
+            "texture_seconds": stages["texture"], "export_seconds": stages["export"], "total_seconds": total, "cpu_seconds": cpu,
+            "peak_mb": peak_bytes() / 2**20, "charts": tex.info["charts"],
+            "texels_per_pixel": tex.info["texels_per_pixel"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--views", type=int, default=30)
+    ap.add_argument("--faces", type=int, default=30000, help="face count of both meshes in the fidelity table")
+    ap.add_argument("--time-faces", type=int, default=300000)
+    ap.add_argument("--atlas", type=int, default=4096)
+    ap.add_argument("--only", choices=("fidelity", "time"))
+    ap.add_argument("--scenes", default="blob,room,bunny")
+    ap.add_argument("--json", help="write the figures to this JSON file")
+    args = ap.parse_args()
+    progress.set_enabled(False)
+    res = {"fidelity": [], "time": None}
+    with tempfile.TemporaryDirectory() as td:
+        tmp = Path(td)
+        if args.only != "time":
+            print("| scene | geometry | faces | PSNR vertex colours dB | PSNR textured dB | gain dB | texture s | "
+                  "charts | texels/pixel |")
+            print("|---|---|---|---|---|---|---|---|---|")
+            for name in args.scenes.split(","):
+                if name == "bunny":
+                    if not BUNNY.is_file():
+                        print(f"(bunny skipped: {BUNNY} not found)")
+                        continue
+                    cfg = SynthConfig(mesh=str(BUNNY), up="y", views=args.views)
+                else:
+                    cfg = SynthConfig(scene=name, views=args.views)
+                for r in fidelity(name, cfg, args.faces, tmp, args.atlas):
+                    res["fidelity"].append(r)
+                    full = (f"; full fused mesh ({r['full_faces']:,} faces) with vertex colours: "
+                            f"{r['psnr_vertex_full']:.2f} dB") if "full_faces" in r else ""
+                    print(f"| {name} | {r['geometry']} | {r['faces']:,} | {r['psnr_vertex']:.2f} | "
+                          f"{r['psnr_textured']:.2f} | **{r['gain_db']:+.2f}** | {r['texture_seconds']:.1f} | "
+                          f"{r['charts']} | {r['texels_per_pixel']:.2f} |{full}", flush=True)
+        if args.only != "fidelity":
+            t = timing(args.views, args.time_faces, tmp, args.atlas)
+            res["time"] = t
+            print(f"\ntexturing {t['views']} views of {t['size']}, {t['faces']:,} faces, atlas {t['atlas']}: "
+                  f"{t['texture_seconds']:.1f} s + export {t['export_seconds']:.1f} s = {t['total_seconds']:.1f} s "
+                  f"(target <= 30 s; CPU time of all threads {t['cpu_seconds']:.1f} s), peak {t['peak_mb']:.0f} MB, {t['charts']} charts, "
+                  f"{t['texels_per_pixel']:.2f} texels/pixel")
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
