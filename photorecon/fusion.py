@@ -653,21 +653,13 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     return _largest_component(from_open3d(mesh))
 
 
-def boundary_edges(mesh: trimesh.Trimesh) -> int:
-    """Number of edges used by exactly one face (the rims of holes; 0 for a closed surface)."""
-    if not len(mesh.faces):
-        return 0
-    e = np.sort(np.asarray(mesh.faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(e, axis=0, return_counts=True)
-    return int((counts == 1).sum())
-
-
 def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: int = 50_000) -> dict:
     """Watertightness (trimesh ``is_watertight``, boundary edges) and the *invented* fraction of a mesh's area:
     area-uniform samples farther than ``invent_distance`` from every observed depth point. The distance is two
     cells of the mesher (Poisson octree cell, TSDF voxel), at least three pixel footprints."""
     from scipy.spatial import cKDTree
 
+    from .mesh import boundary_edges
     from .metrics import sample_surface
 
     frames = [f for f in frames if np.count_nonzero(f.depth)]
@@ -783,10 +775,13 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     frames = load_frames(ds, cfg)
     out = prepare_output(out, overwrite, inputs=(root,) + ((masks_dir,) if masks_dir else ()))
     mesh = fuse(frames, cfg, ds.model.points)
-    mesh = clean(mesh, clean_cfg or CleanConfig())
+    mesh = clean(mesh, clean_cfg or CleanConfig(), cameras=[f.view for f in frames])
     path = Path(out) / "mesh.ply"
     for fmt in formats:
         export(mesh, Path(out) / f"mesh.{fmt}")
     render_preview(mesh, Path(out) / "preview.png", cameras=[f.view for f in frames])
-    log.info("fuse: %d views -> %s (%d vertices, %d faces)", len(frames), path, len(mesh.vertices), len(mesh.faces))
+    surface = surface_report(mesh, frames)
+    log.info("fuse: %d views -> %s (%d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of the area "
+             "invented)", len(frames), path, len(mesh.vertices), len(mesh.faces), surface["watertight"],
+             surface["boundary_edges"], 100 * surface["invented_fraction"])
     return path

@@ -124,7 +124,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 overwrite: bool = False) -> dict:
     """Run the whole pipeline; returns the report (also written to OUT/report.json)."""
     from .depth.mvs import run_mvs
-    from .fusion import fuse, load_frames
+    from .fusion import fuse, load_frames, surface_report
     from .io.colmap_text import write_colmap_text
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
@@ -221,12 +221,15 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
         def fusion() -> dict:
             frames = load_frames(ds, cfgs.fusion)
-            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean)
+            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean, cameras=ds.views)
             for fmt in formats:
                 export(mesh, out / f"mesh.{fmt}")
             fused["mesh"] = mesh
-            log.info("mesh: %d vertices, %d faces", len(mesh.vertices), len(mesh.faces))
-            return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames)}
+            surface = surface_report(mesh, frames)  # watertight, boundary edges, invented fraction
+            log.info("mesh: %d vertices, %d faces; watertight: %s, %.1f%% of its area invented", len(mesh.vertices),
+                     len(mesh.faces), surface["watertight"], 100 * surface["invented_fraction"])
+            return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
+                    "mesher": cfgs.fusion.mesher, **surface}
 
         def preview() -> None:
             mesh = fused["mesh"] if "mesh" in fused else load(out / f"mesh.{formats[0]}")
@@ -281,7 +284,7 @@ def _copy_depth(src: Path, ds, dst: Path, factor: float = 1.0) -> int:
             np.save(dst / p.name, (d * factor).astype(np.float32))
         else:
             shutil.copyfile(p, dst / p.name)
-        for extra in (f"{v.name}.conf.npy", f"{v.name}.png"):
+        for extra in (f"{v.name}.conf.npy", f"{v.name}.normal.npy", f"{v.name}.png"):
             if (src / extra).is_file():
                 shutil.copyfile(src / extra, dst / extra)
         n += 1
@@ -317,7 +320,12 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
     facts = {"registered images": report.get("poses", {}).get("registered"),
              "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
              "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
-             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces")}
+             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces"),
+             "watertight": report.get("mesh", {}).get("watertight"),
+             "boundary edges": report.get("mesh", {}).get("boundary_edges"),
+             "invented area (farther than invent_distance from every observed point)":
+                 None if report.get("mesh", {}).get("invented_fraction") is None
+                 else f"{100 * report['mesh']['invented_fraction']:.1f}%"}
     facts.update(extra_rows or {})
     fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
     depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""
