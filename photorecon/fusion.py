@@ -629,7 +629,7 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     patch_faces = filled.faces[len(open_mesh.faces):] if len(filled.faces) > len(open_mesh.faces) else np.zeros((0, 3), int)
     pts, nrm = np.asarray(cloud.points), np.asarray(cloud.normals)
     if len(patch_faces):
-        patch = trimesh.Trimesh(filled.vertices, patch_faces, process=False)
+        patch = _membrane(filled.vertices, patch_faces, cell)
         n_samples = int(min(2_000_000, max(1000, 2 * patch.area / cell ** 2)))
         sp, fi = trimesh.sample.sample_surface(patch, n_samples, seed=0)
         sn = np.asarray(patch.face_normals)[fi]
@@ -651,6 +651,31 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
         c2.colors = o3d.utility.Vector3dVector(cols)
     mesh, _ = _poisson(c2, depth)
     return _largest_component(from_open3d(mesh))
+
+
+def _membrane(vertices: np.ndarray, faces: np.ndarray, cell: float, iterations: int = 200) -> trimesh.Trimesh:
+    """A hole patch (triangles spanning the hole's rim) turned into a smooth membrane: split until no edge is
+    longer than two cells, then every inner vertex moved to the mean of its neighbours (the rim fixed), a
+    discrete minimal surface, instead of the fan's flat facets."""
+    from scipy import sparse
+
+    used = np.unique(faces)
+    remap = np.full(len(vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    V, F = trimesh.remesh.subdivide_to_size(np.asarray(vertices)[used], remap[faces], max_edge=2 * cell,
+                                            max_iter=20)
+    if len(V) > len(used):
+        e = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+        e = np.vstack([e, e[:, ::-1]])
+        A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(V), len(V))).tocsr()
+        A.data[:] = 1.0  # duplicate edges count once
+        deg = np.asarray(A.sum(1)).ravel()
+        inner = np.arange(len(used), len(V))  # subdivision appends the new vertices after the old ones
+        Ai = sparse.diags(1.0 / np.maximum(deg[inner], 1)) @ A[inner]
+        V = V.copy()
+        for _ in range(iterations):
+            V[inner] = Ai @ V
+    return trimesh.Trimesh(V, F, process=False)
 
 
 def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: int = 50_000) -> dict:
