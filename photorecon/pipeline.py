@@ -131,7 +131,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 overwrite: bool = False) -> dict:
     """Run the whole pipeline; returns the report (also written to OUT/report.json)."""
     from .depth.mvs import run_mvs
-    from .fusion import fuse, load_frames
+    from .fusion import fuse, load_frames, surface_report
     from .io.colmap_text import write_colmap_text
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
@@ -235,12 +235,15 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
         def fusion() -> dict:
             frames = load_frames(ds, cfgs.fusion)
-            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean)
+            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean, cameras=ds.views)
             for fmt in formats:
                 export(mesh, layout.mesh(fmt))
             fused["mesh"] = mesh
-            log.info("mesh: %d vertices, %d faces", len(mesh.vertices), len(mesh.faces))
-            return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames)}
+            surface = surface_report(mesh, frames)  # watertight, boundary edges, invented fraction
+            log.info("mesh: %d vertices, %d faces; watertight: %s, %.1f%% of its area invented", len(mesh.vertices),
+                     len(mesh.faces), surface["watertight"], 100 * surface["invented_fraction"])
+            return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
+                    "mesher": cfgs.fusion.mesher, **surface}
 
         def preview() -> None:
             mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
@@ -306,7 +309,7 @@ def _copy_depth(src: Path, ds, dst: Path, factor: float = 1.0) -> int:
             np.save(dst / p.name, (d * factor).astype(np.float32))
         else:
             shutil.copyfile(p, dst / p.name)
-        for extra in (f"{v.name}.conf.npy", f"{v.name}.png"):
+        for extra in (f"{v.name}.conf.npy", f"{v.name}.normal.npy", f"{v.name}.png"):
             if (src / extra).is_file():
                 shutil.copyfile(src / extra, dst / extra)
         n += 1

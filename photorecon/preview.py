@@ -11,15 +11,27 @@ from .cameras import Intrinsics, View, invert_rigid, look_at_views, project
 from .io.images import write_image
 
 
+def bulk_frame(mesh: trimesh.Trimesh, coverage: float = 97.0, n: int = 20_000) -> tuple[np.ndarray, float]:
+    """Centre and radius of the bulk of a mesh's *area*: the per-axis median of area-uniform surface samples,
+    and the ``coverage`` percentile of their distances from it. A small
+    fragment far away (a floater the cleaning kept) or a long thin spike moves neither, unlike the bounding
+    box."""
+    if not len(mesh.faces) or not mesh.area > 0:
+        lo, hi = mesh.bounds
+        return (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2 or 1.0
+    pts, _ = trimesh.sample.sample_surface(mesh, n, seed=0)
+    center = np.median(pts, axis=0)
+    radius = float(np.percentile(np.linalg.norm(pts - center, axis=1), coverage))
+    return center, max(radius, 1e-9)
+
+
 def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
                    extra_points: np.ndarray | None = None, front: np.ndarray | None = None) -> list[View]:
-    lo, hi = mesh.bounds
-    center = (lo + hi) / 2
-    pts = np.asarray(mesh.vertices)
+    center, radius = bulk_frame(mesh)
     if extra_points is not None and len(extra_points):
-        pts = np.vstack([pts, extra_points])
-    # distance at which the bounding sphere (about the mesh's centre) fills the 55-degree view
-    radius = float(np.linalg.norm(pts - center, axis=1).max()) / np.sin(np.radians(55.0 / 2)) * 1.02
+        radius = max(radius, float(np.linalg.norm(extra_points - center, axis=1).max()))
+    # distance at which the sphere holding the bulk of the surface fills the 55-degree view
+    radius = radius / np.sin(np.radians(55.0 / 2)) * 1.05
     up = np.asarray(up, float)
     el = np.radians(25.0)
     # an orthonormal frame around `up`; with a `front` direction (cameras on one side, e.g. a facade) the
@@ -40,8 +52,9 @@ def _preview_views(mesh: trimesh.Trimesh, n: int, size: int, up=(0.0, 0.0, 1.0),
 
 def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] | None = None, n: int = 4,
                    size: int = 360, up=None) -> Path:
-    """Render ``mesh`` (its texture unlit, else vertex colours if any, else grey) from ``n`` viewpoints side by side, drawing the
-    ``cameras`` as frusta; write a PNG."""
+    """Render ``mesh`` (its texture unlit, else vertex colours if any, else grey) from ``n`` viewpoints side by
+    side, drawing the ``cameras`` as frusta; write a PNG. The views frame the bulk of the surface's area
+    (``bulk_frame``), not its bounding box."""
     from .render import Renderer
 
     if up is None:
@@ -55,11 +68,12 @@ def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] 
     r = Renderer(mesh, plain=not (has_colors or textured), background_color=(1.0, 1.0, 1.0),
                  soft_light=has_colors, unlit=textured)
     tiles = []
-    diag = float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0]))
+    bulk_center, bulk_radius = bulk_frame(mesh)
+    diag = 2 * bulk_radius
     centers = np.array([c.center for c in cameras]) if cameras else None
     front = None
     if cameras:
-        dirs = centers - mesh.bounds.mean(0)
+        dirs = centers - bulk_center
         mean_dir = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).mean(0)
         if np.linalg.norm(mean_dir) > 0.5:  # the cameras look from one side
             front = mean_dir

@@ -474,7 +474,12 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
     facts = {"registered images": report.get("poses", {}).get("registered"),
              "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
              "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
-             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces")}
+             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces"),
+             "watertight": report.get("mesh", {}).get("watertight"),
+             "boundary edges": report.get("mesh", {}).get("boundary_edges"),
+             "invented area (farther than invent_distance from every observed point)":
+                 None if report.get("mesh", {}).get("invented_fraction") is None
+                 else f"{100 * report['mesh']['invented_fraction']:.1f}%"}
     facts.update(extra_rows or {})
     fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
     depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""

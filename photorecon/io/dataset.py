@@ -151,6 +151,17 @@ class Dataset:
         p = self.depth_dir / f"{view.name}.conf.npy"
         return np.load(p).astype(np.float32) if p.is_file() else None
 
+    def normals(self, view: View) -> np.ndarray | None:
+        """PatchMatch's per-pixel normals (H, W, 3) float32 in the camera frame (DEPTH_DIR/NAME.normal.npy),
+        or None when there are none (rendered, monocular or sensor depth)."""
+        p = self.depth_dir / f"{view.name}.normal.npy"
+        if not p.is_file():
+            return None
+        try:
+            return np.load(p, allow_pickle=False).astype(np.float32)
+        except (ValueError, OSError) as exc:
+            raise InputDataError(f"view {view.name}: {p} is not a readable .npy normal map ({exc})") from None
+
     def _image_name(self, view: View) -> str:
         """The view's image file name (NAME.EXT), what a COLMAP-style mask NAME.EXT.png is named after."""
         return Path(view.image_path).name if view.image_path else Path(view.image_file or view.name).name
