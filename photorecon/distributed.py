@@ -122,8 +122,9 @@ class DaskExecutor(Executor):
                         fut.result()  # raises the task's exception
                     progress.update(1)
             return {k: f.result() for k, f in futures.items()}
-        finally:
+        except BaseException:  # a failed task or Ctrl-C: nothing else of this graph keeps running
             self.client.cancel(list(futures.values()) + [ctx])
+            raise
 
     def close(self) -> None:
         cluster = getattr(self, "_cluster", None)
@@ -134,13 +135,14 @@ class DaskExecutor(Executor):
 
 def local_cluster(n_workers: int, cores: int | None = None):
     """A ``LocalCluster`` of ``n_workers`` processes with ``cores // n_workers`` threads each (at least 1), and
-    numba / OpenMP / OpenCV limited to that many threads per worker; no dashboard (no port to collide on)."""
+    numba / OpenMP / OpenCV limited to that many threads per worker; its dashboard on a free port (``None``
+    still takes 8787 in distributed 2026.8, and two runs would collide)."""
     from distributed import LocalCluster
 
     cores = cores or os.cpu_count() or 1
     threads = max(1, cores // n_workers)
     env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads)}
-    return LocalCluster(n_workers=n_workers, threads_per_worker=threads, processes=True, dashboard_address=None,
+    return LocalCluster(n_workers=n_workers, threads_per_worker=threads, processes=True, dashboard_address=":0",
                         host="127.0.0.1", env=env, silence_logs=logging.ERROR)
 
 
@@ -150,6 +152,10 @@ def make_executor(cfg: ClusterConfig | None) -> Executor:
     if cfg is None or not cfg.cluster:
         return IN_PROCESS
     kind, arg = parse_cluster(cfg.cluster)
+    if not log.isEnabledFor(logging.DEBUG):  # Dask's own INFO lines (workers starting, keys released) only with -v
+        for name in ("distributed", "distributed.scheduler", "distributed.nanny", "distributed.worker",
+                     "distributed.core", "distributed.http.proxy"):
+            logging.getLogger(name).setLevel(logging.WARNING)
     try:
         from distributed import Client
     except ImportError:  # pragma: no cover - a dependency

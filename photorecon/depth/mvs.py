@@ -605,6 +605,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
               "wall_seconds": t_all, "workers": ex.workers, "sparse_points": int(len(model.points)),
               "triangulated": triangulated, "triangulation_seconds": t_tri, "consistency": consistency,
               "seconds_per_view": task_seconds / max(len(views), 1), "per_view": stats,
+              "reused_tasks": sum(1 for r in results.values() if r.get("reused")),
               "task_seconds": {k: round(r["seconds"], 4) for k, r in results.items()}}
     atomic_write_json(out / "mvs_report.json", report)
     return report
