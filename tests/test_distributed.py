@@ -153,13 +153,13 @@ def test_interrupted_cluster_reconstruct_resumes(tiny, cluster, tmp_path, monkey
     _same_depth(_depths(tmp_path / "fresh"), _depths(out / "depth"))
 
 
-def test_chunked_fusion_equals_single_volume(blob_small, tmp_path):
-    """Rendered depth of the blob: chunks of 64 voxels (32 chunks, many borders) stitched = one volume, face for face."""
-    ds = Dataset.open(blob_small)
+def test_chunked_fusion_equals_single_volume(tiny, tmp_path):
+    """Rendered depth of the blob: chunks of 32 voxels (many borders) stitched = one volume, face for face."""
+    ds = Dataset.open(tiny)
     cfg = FusionConfig()
     frames = load_frames(ds, cfg)
     single = tsdf_fuse(frames, cfg)
-    chunked = tsdf_fuse_chunked(ds, frames, cfg, chunk_voxels=64, work_dir=tmp_path / "w")
+    chunked = tsdf_fuse_chunked(ds, frames, cfg, chunk_voxels=32, work_dir=tmp_path / "w")
     assert chunked.metadata["chunks"] >= 20
     diag = float(np.linalg.norm(single.bounds[1] - single.bounds[0]))
     assert mesh_metrics(chunked, single, tau=0.005 * diag, n_samples=50_000).fscore >= 0.999

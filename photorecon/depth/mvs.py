@@ -572,7 +572,9 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
     work = Path(work_dir) if work_dir else out / ".mvs_work"
     ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out)
+    t_graph = time.perf_counter()
     results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method})")
+    t_graph = time.perf_counter() - t_graph
     _GREY_CACHE.clear()
     t_all = time.perf_counter() - t0
     task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
@@ -602,7 +604,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         pass
     # depth_seconds: the depth tasks' own time (summed over workers); wall_seconds: the whole graph, filter included
     report = {"views": len(stats), "skipped": skipped, "method": cfg.method, "depth_seconds": task_seconds,
-              "wall_seconds": t_all, "workers": ex.workers, "sparse_points": int(len(model.points)),
+              "wall_seconds": t_all, "graph_seconds": t_graph, "workers": ex.workers, "sparse_points": int(len(model.points)),
               "triangulated": triangulated, "triangulation_seconds": t_tri, "consistency": consistency,
               "seconds_per_view": task_seconds / max(len(views), 1), "per_view": stats,
               "reused_tasks": sum(1 for r in results.values() if r.get("reused")),
