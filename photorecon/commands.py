@@ -11,6 +11,12 @@ def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     p.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder not made by photorecon")
 
 
+def _cluster_args(p: argparse.ArgumentParser) -> None:
+    from .distributed import ClusterConfig
+
+    add_config_arguments(p.add_argument_group("cluster (Dask)"), ClusterConfig)
+
+
 def _masks_arg(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--masks", metavar="DIR", help=f"mask folder: NAME.png or COLMAP's NAME.EXT.png (e.g. IMG_1.jpg.png) "
                                                   f"at the image's size, 0 = ignore the pixel; {what}")
@@ -51,6 +57,7 @@ def fuse(sub):
     p.add_argument("--formats", default="ply", help="comma-separated mesh formats: ply,obj,glb (default: ply)")
     add_config_arguments(p, FusionConfig)
     add_config_arguments(p, CleanConfig)
+    _cluster_args(p)
     p.set_defaults(func=_run_fuse)
 
 
@@ -59,9 +66,11 @@ def _run_fuse(args):
     from .mesh import CleanConfig, parse_formats
 
     formats = parse_formats(args.formats)
+    from .distributed import ClusterConfig
+
     path = fuse_dataset(args.dataset, args.out, config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), args.depth_dir, args.overwrite, formats,
-                        masks_dir=args.masks)
+                        masks_dir=args.masks, cluster=config_from_args(ClusterConfig, args))
     print(f"fuse: mesh written to {path}")
     return 0
 
@@ -294,6 +303,7 @@ def mvs(sub):
     p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
     _masks_arg(p, "no depth there (default: DATASET/masks, else the images' alpha channel)")
     add_config_arguments(p, MVSConfig)
+    _cluster_args(p)
     p.set_defaults(func=_run_mvs)
 
 
@@ -301,8 +311,11 @@ def _run_mvs(args):
     from .depth.mvs import MVSConfig, run_mvs
     from .io.dataset import Dataset
 
+    from .distributed import ClusterConfig, executor
+
     ds = Dataset.open(args.dataset, masks_dir=args.masks)
-    rep = run_mvs(ds, args.out, config_from_args(MVSConfig, args))
+    with executor(config_from_args(ClusterConfig, args)) as ex:
+        rep = run_mvs(ds, args.out, config_from_args(MVSConfig, args), ex)
     where = args.out or f"{args.dataset}/depth"
     print(f"mvs: depth for {rep['views']} of {len(ds.views)} views ({rep['seconds_per_view']:.2f} s/view) -> {where}")
     return 0
@@ -314,7 +327,7 @@ def _add_stage_args(p):
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
                        ("fusion", d.fusion), ("cleaning", d.clean), ("metric scale", d.scale),
-                       ("texture (with --texture)", d.texture)):
+                       ("texture (with --texture)", d.texture), ("cluster (Dask)", d.cluster)):
         add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg)
 
 
@@ -335,6 +348,7 @@ def _run_reconstruct(args):
     from .depth.mvs import MVSConfig
     from .fusion import FusionConfig
     from .mesh import CleanConfig
+    from .distributed import ClusterConfig
     from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
     from .scale import ScaleConfig
     from .sfm import SfMConfig
@@ -343,7 +357,7 @@ def _run_reconstruct(args):
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
                         config_from_args(MVSConfig, args), config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args),
-                        config_from_args(TextureConfig, args))
+                        config_from_args(TextureConfig, args), config_from_args(ClusterConfig, args))
     rep = run(args.images, args.out, cfgs, force=args.force, overwrite=args.overwrite)
     p, d, m = rep["poses"], rep["depth"], rep["mesh"]
     print(f"reconstruct: {p.get('registered')} images registered, {d.get('views')} depth maps ({d.get('source')}), "
@@ -399,6 +413,7 @@ def depth(sub):
     p.add_argument("--model", required=True, help="ONNX model file")
     p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
     add_config_arguments(p, MonoConfig)
+    _cluster_args(p)
     p.set_defaults(func=_run_depth)
 
 
@@ -406,8 +421,11 @@ def _run_depth(args):
     from .depth.mono import MonoConfig, run_mono
     from .io.dataset import Dataset
 
+    from .distributed import ClusterConfig, executor
+
     ds = Dataset.open(args.dataset)
-    rep = run_mono(ds, args.model, args.out, config_from_args(MonoConfig, args))
+    with executor(config_from_args(ClusterConfig, args)) as ex:
+        rep = run_mono(ds, args.model, args.out, config_from_args(MonoConfig, args), ex)
     print(f"depth: {rep['views']} of {len(ds.views)} views aligned ({rep['inference_ms_per_image']:.0f} ms inference, "
           f"{rep['alignment_ms_per_image']:.1f} ms alignment per image) -> {args.out or args.dataset + '/depth'}")
     if rep["excluded"]:

@@ -87,8 +87,6 @@ BUNNY_METHODS = (("article", "article: per-view grids concatenated"), ("tsdf", "
 def run_bunny_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
     """The article's experiment (see the module docstring). Writes OUT/scene (the rendered dataset),
     OUT/tsdf.ply, OUT/watertight.ply, OUT/side_by_side.png and OUT/demo.json; returns the summary."""
-    import trimesh
-
     from .fusion import FusionConfig, fuse, legacy_article_fuse, load_frames, surface_report
     from .io.dataset import Dataset
     from .io.output import prepare_output

@@ -63,6 +63,7 @@ class FusionConfig:
     use_masks: bool = field(default=True, metadata={"help": "apply masks/NAME.png when present"})
     confidence_weights: bool = field(default=True, metadata={"help": "TSDF: weight each pixel by its confidence map (NAME.conf.npy) when present"})
     max_stretch: float = field(default=8.0, metadata={"help": "grid: reject triangles whose edge exceeds this many pixel footprints"})
+    chunk_voxels: int | None = field(default=None, metadata={"help": "TSDF in cubic chunks of about this many voxels a side (rounded to 16-voxel blocks), one task each, stitched into one mesh: memory per task bounded by the chunk, not the scene (default: one volume; 256 with --cluster)"})
     memory_limit_gb: float | None = field(default=None, metadata={"help": "refuse a voxel grid above this size (default: 60%% of free memory)"})
     poisson_depth: int = field(default=0, metadata={"help": "poisson: octree depth (0 = a cell of about 2 pixel footprints, depth 5 to 10)"})
     poisson_trim: float = field(default=0.02, metadata={"help": "poisson: drop the surface where the sample density is below this quantile of the vertices' densities (the parts no depth supports; 0 = off)"})
@@ -297,50 +298,272 @@ def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc:
                               tsdf, weight, grid_color)
 
 
-def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
-    """Integrate ``frames`` into a VoxelBlockGrid and extract a coloured triangle mesh."""
+def _new_grid(voxel: float, n_blocks: int):
     import open3d as o3d
     import open3d.core as o3c
 
+    return o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+        attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=_BLOCK_RES, block_count=max(64, n_blocks),
+        device=o3c.Device("CPU:0"))
+
+
+def _depth_max(frames: list[DepthFrame], trunc: float) -> float:
+    return float(max(f.depth.max() for f in frames)) * 1.01 + trunc
+
+
+def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float,
+                     blocks: tuple[np.ndarray, np.ndarray] | None = None) -> int:
+    """Integrate one frame into ``vbg`` (confidence-weighted when it has a confidence map); only the blocks it
+    touches, and with ``blocks`` = (lo, hi) block coordinates only those with lo <= key < hi (a chunk).
+    Returns the number of blocks integrated."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    intr = f.view.intrinsics
+    if intr.has_distortion:
+        raise BadArgumentError(f"view {f.view.name}: TSDF fusion needs undistorted (pinhole) depth maps")
+    trunc = cfg.trunc_voxels * voxel
+    K = o3c.Tensor(intr.K, o3c.float64)
+    T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
+    depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
+    coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+    if blocks is not None:
+        c = coords.numpy()
+        keep = np.all((c >= blocks[0]) & (c < blocks[1]), axis=1)
+        if not keep.any():
+            return 0
+        coords = o3c.Tensor(np.ascontiguousarray(c[keep]))
+    if f.confidence is not None and cfg.confidence_weights:
+        _integrate_weighted(vbg, coords, f, voxel, trunc, depth_max)
+    else:
+        color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
+        color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
+        vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+    return int(coords.shape[0])
+
+
+def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Marching cubes on the grid: (vertices (V, 3) float64, faces (F, 3) int64, colours (V, 3) uint8 or None)."""
+    mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
+    V = mesh.vertex.positions.numpy().astype(np.float64)
+    F = mesh.triangle.indices.numpy().astype(np.int64)
+    colors = None
+    if "colors" in mesh.vertex:
+        colors = (np.clip(mesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
+    return V, F, colors
+
+
+def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
+    """Integrate ``frames`` into a VoxelBlockGrid and extract a coloured triangle mesh."""
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     if not frames:
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
     voxel, n_blocks = tsdf_voxel_size(frames, cfg, sparse_points)
     trunc = cfg.trunc_voxels * voxel
     log.debug("tsdf: voxel %.5g, truncation %.5g, ~%d blocks", voxel, trunc, n_blocks)
-    dev = o3c.Device("CPU:0")
-    vbg = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
-        attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=_BLOCK_RES, block_count=n_blocks,
-        device=dev)
-    depth_max = float(max(f.depth.max() for f in frames)) * 1.01 + trunc
+    vbg = _new_grid(voxel, n_blocks)
+    depth_max = _depth_max(frames, trunc)
     for f in bar(frames, desc="tsdf fusion"):
-        intr = f.view.intrinsics
-        if intr.has_distortion:
-            raise BadArgumentError(f"view {f.view.name}: TSDF fusion needs undistorted (pinhole) depth maps")
-        K = o3c.Tensor(intr.K, o3c.float64)
-        T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
-        depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
-        coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
-        if f.confidence is not None and cfg.confidence_weights:
-            _integrate_weighted(vbg, coords, f, voxel, trunc, depth_max)
-        else:
-            color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
-            color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
-            vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
-    mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
-    V = mesh.vertex.positions.numpy().astype(np.float64)
-    F = mesh.triangle.indices.numpy().astype(np.int64)
+        _integrate_frame(vbg, f, cfg, voxel, depth_max)
+    V, F, colors = _extract(vbg, cfg)
     if len(F) == 0:
         raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "
                              "(lower --weight-threshold or use a larger --voxel-size)")
-    colors = None
-    if "colors" in mesh.vertex:
-        colors = (np.clip(mesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
     out = trimesh.Trimesh(V, F, vertex_colors=colors, process=False)
     out.metadata["voxel_size"] = voxel
     out.metadata["mesher"] = "tsdf"
     return out
+
+
+# --- TSDF in spatial chunks (one task each: in-process or on a Dask cluster) -------------------------------
+@dataclass
+class _ChunkContext:
+    """What every chunk task needs: the dataset (depth maps read from disk by the task), the settings, each
+    frame's view and valid depth range (in fusion order), the voxel, the depth limit, the chunk size in blocks
+    and the folder the pieces go to."""
+
+    dataset: object
+    cfg: FusionConfig
+    cams: list[tuple[View, float, float]]
+    voxel: float
+    depth_max: float
+    chunk_blocks: int
+    work: object
+
+
+def _sample_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
+    """Unique (N, 3) block coordinates the frames' sampled surfaces (and their truncation band) fall in,
+    dilated by one block (samples are sparser than blocks at high resolution)."""
+    block = voxel * _BLOCK_RES
+    keys = []
+    for f in frames:
+        pts = _sample_depth_points(f, 20000)
+        if not len(pts):
+            continue
+        ray = pts - camera_center(f.view.cam_from_world)
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        keys.append(np.unique(_cell_keys(np.concatenate([pts + s * ray for s in (-trunc, 0.0, trunc)]), block)))
+    if not keys:
+        return np.zeros((0, 3), np.int64)
+    k = np.unique(np.concatenate(keys))
+    off = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
+    k = np.unique((k[:, None] + ((off[:, 0] << 42) + (off[:, 1] << 21) + off[:, 2])[None]).ravel())
+    mask = (1 << 21) - 1  # unpack _cell_keys' 21-bit fields
+    return np.stack([(k >> 42) & mask, (k >> 21) & mask, k & mask], 1) - (1 << 20)
+
+
+def plan_chunks(frames: list[DepthFrame], voxel: float, trunc: float, chunk_blocks: int) -> list[tuple[tuple[int, int, int], int]]:
+    """The chunks (index (i, j, k): blocks [index * chunk_blocks, (index + 1) * chunk_blocks) on each axis) that
+    hold surface, each with its estimated block count (for the grid's first allocation)."""
+    blocks = _sample_blocks(frames, voxel, trunc)
+    ids, counts = np.unique(np.floor_divide(blocks, chunk_blocks), axis=0, return_counts=True)
+    return [(tuple(int(x) for x in i), int(c)) for i, c in zip(ids, counts)]
+
+
+def _box_visible(view: View, lo: np.ndarray, hi: np.ndarray, zmin: float, zmax: float) -> bool:
+    """Whether the world box [lo, hi] may hold points of ``view``'s depth between ``zmin`` and ``zmax``
+    (conservative: corners' depth range against it, and their projection against the image when all are in
+    front of the camera)."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    T = view.cam_from_world
+    c = corners @ T[:3, :3].T + T[:3, 3]
+    if c[:, 2].max() < zmin or c[:, 2].min() > zmax:
+        return False
+    if (c[:, 2] > 1e-9).all():
+        intr = view.intrinsics
+        u = intr.fx * c[:, 0] / c[:, 2] + intr.cx
+        v = intr.fy * c[:, 1] / c[:, 2] + intr.cy
+        if u.max() < -1 or v.max() < -1 or u.min() > intr.width or v.min() > intr.height:
+            return False
+    return True
+
+
+def _chunk_task(ctx: _ChunkContext, index: tuple[int, int, int], est_blocks: int) -> dict:
+    """Integrate one chunk from the frames that reach it and mesh it; keep the triangles whose centroid lies
+    in the chunk's own (core) box. The grid holds the core blocks and one block layer around them, so every
+    triangle of the core sees the same voxels (same values: the same frames in the same order) as in one
+    volume. The piece goes to ``work/chunk_I_J_K.npz`` (atomically; a task whose piece is there returns)."""
+    from pathlib import Path
+
+    from .resources import measure
+
+    path = Path(ctx.work) / "chunk_{}_{}_{}.npz".format(*index)
+    if path.is_file():
+        return {"path": str(path), "seconds": 0.0, "reused": True}
+    stats: dict = {}
+    with measure(stats, "task"):
+        info = _chunk_piece(ctx, index, est_blocks, path)
+    # peak_mb: the process's peak during the task (the worker's imports included)
+    return {"path": str(path), **info, **stats["task"]}
+
+
+def _chunk_piece(ctx: _ChunkContext, index: tuple[int, int, int], est_blocks: int, path) -> dict:
+    from .io.atomic import atomic_path
+
+    cfg, voxel = ctx.cfg, ctx.voxel
+    trunc = cfg.trunc_voxels * voxel
+    lo = np.array(index, np.int64) * ctx.chunk_blocks
+    hi = lo + ctx.chunk_blocks
+    block = voxel * _BLOCK_RES
+    margin = trunc + block * np.sqrt(3)
+    vbg = _new_grid(voxel, int(est_blocks * 1.5) + 64)
+    used = 0
+    for view, dmin, dmax in ctx.cams:
+        if not _box_visible(view, (lo - 1) * block, (hi + 1) * block, dmin - margin, dmax + margin):
+            continue
+        f = load_frame(ctx.dataset, view, cfg)
+        if f is not None and _integrate_frame(vbg, f, cfg, voxel, ctx.depth_max, (lo - 1, hi + 1)):
+            used += 1
+    V, F, C = _extract(vbg, cfg) if used else (np.zeros((0, 3)), np.zeros((0, 3), np.int64), None)
+    n_blocks = int(vbg.hashmap().size())
+    del vbg
+    if len(F):
+        cen = V[F].mean(axis=1)
+        F = F[np.all((cen >= lo * block) & (cen < hi * block), axis=1)]
+        used_v = np.unique(F)
+        remap = np.full(len(V), -1, np.int64)
+        remap[used_v] = np.arange(len(used_v))
+        V, F, C = V[used_v], remap[F], (C[used_v] if C is not None else None)
+    with atomic_path(path) as tmp:
+        np.savez(tmp, vertices=V.astype(np.float32), faces=F.astype(np.int32),
+                 colors=C if C is not None else np.zeros((0, 3), np.uint8))
+    return {"frames": used, "blocks": n_blocks, "faces": int(len(F)),
+            "grid_mb": round(n_blocks * _BLOCK_RES ** 3 * _BYTES_PER_VOXEL / 2**20, 1)}
+
+
+def stitch_pieces(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]) -> trimesh.Trimesh:
+    """One mesh from chunk pieces: faces concatenated, vertices at the same position (a chunk border: the
+    same marching-cubes vertex computed on both sides) merged into one."""
+    pieces = [p for p in pieces if len(p[1])]
+    if not pieces:
+        raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "
+                             "(lower --weight-threshold or use a larger --voxel-size)")
+    offsets = np.cumsum([0] + [len(p[0]) for p in pieces])
+    V = np.concatenate([p[0] for p in pieces])
+    F = np.concatenate([p[1].astype(np.int64) + o for p, o in zip(pieces, offsets)])
+    has_color = all(p[2] is not None and len(p[2]) == len(p[0]) for p in pieces)
+    uniq, first, inv = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    F = inv.ravel()[F]
+    C = np.concatenate([p[2] for p in pieces])[first] if has_color else None
+    return trimesh.Trimesh(uniq.astype(np.float64), F, vertex_colors=C, process=False)
+
+
+def tsdf_fuse_chunked(dataset, frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None,
+                      executor=None, work_dir=None, chunk_voxels: int | None = None) -> trimesh.Trimesh:
+    """TSDF fusion in cubic chunks of ``chunk_voxels`` (``cfg.chunk_voxels``, default 256) voxels a side, one task
+    per chunk that holds surface (``executor``: in-process by default, or a Dask cluster), stitched into one
+    mesh equal to ``tsdf_fuse``'s (same voxel, same frames in the same order per voxel; each triangle kept by
+    the one chunk whose core box holds its centroid). ``frames`` (from ``load_frames(dataset, cfg)``) serve the
+    planning only (voxel size, chunks, each frame's depth range); the tasks read the depth maps of the frames
+    that reach their chunk from ``dataset``. The whole-grid memory limit does not apply (a chunk's grid is
+    bounded by its size). Pieces go to ``work_dir`` (removed on success; reused by a resumed run)."""
+    import hashlib
+    import json
+    import shutil
+    from pathlib import Path
+
+    from .tasks import IN_PROCESS, Task
+
+    ex = executor or IN_PROCESS
+    frames = [f for f in frames if np.count_nonzero(f.depth)]
+    if not frames:
+        raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
+    voxel, _ = tsdf_voxel_size(frames, replace(cfg, memory_limit_gb=cfg.memory_limit_gb or 1e6), sparse_points)
+    trunc = cfg.trunc_voxels * voxel
+    depth_max = _depth_max(frames, trunc)
+    chunk_blocks = max(1, int(round((chunk_voxels or cfg.chunk_voxels or 256) / _BLOCK_RES)))
+    chunks = plan_chunks(frames, voxel, trunc, chunk_blocks)
+    by_name = {v.name: v for v in dataset.views}  # the camera's view: load_frame scales it to its depth map
+    cams = [(by_name[f.view.name], float(f.depth[f.depth > 0].min()), float(f.depth.max())) for f in frames]
+
+    def stat(v: View) -> list:
+        p = dataset.depth_path(v)
+        st = p.stat() if p.is_file() else None
+        return [v.name, st and st.st_size, st and st.st_mtime_ns]
+
+    key = hashlib.sha256(json.dumps([str(cfg), voxel, depth_max, chunk_blocks, [stat(v) for v, _, _ in cams]],
+                                    default=str).encode()).hexdigest()[:16]
+    root = Path(work_dir) if work_dir else Path(dataset.depth_dir).parent / ".fusion_work"
+    ctx = _ChunkContext(dataset, cfg, cams, voxel, depth_max, chunk_blocks, root / key)
+    log.debug("tsdf: voxel %.5g, %d chunks of %d^3 blocks", voxel, len(chunks), chunk_blocks)
+    del frames
+    info = ex.run(_chunk_task, [Task("{}_{}_{}".format(*i), (i, n)) for i, n in chunks], ctx, desc="tsdf chunks",
+                  unit="chunk")
+    pieces = []
+    for r in info.values():
+        with np.load(r["path"]) as z:
+            pieces.append((z["vertices"], z["faces"], z["colors"] if len(z["colors"]) else None))
+    mesh = stitch_pieces(pieces)
+    shutil.rmtree(ctx.work, ignore_errors=True)
+    try:
+        root.rmdir()
+    except OSError:
+        pass
+    mesh.metadata.update({"voxel_size": voxel, "mesher": "tsdf", "chunks": len(chunks),
+                          "chunk_tasks": {k: {x: r.get(x) for x in ("seconds", "frames", "blocks", "faces", "peak_mb", "grid_mb")}
+                                          for k, r in info.items()}})
+    return mesh
 
 
 # --- grid meshing --------------------------------------------------------------------------------------------
@@ -692,9 +915,13 @@ def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: i
             "invented_fraction": float(np.mean(~np.isfinite(dist))), "invent_distance": tau}
 
 
-def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
-    """Fuse depth frames into one mesh with ``cfg.mesher``."""
+def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None, executor=None,
+         dataset=None, work_dir=None) -> trimesh.Trimesh:
+    """Fuse depth frames into one mesh with ``cfg.mesher``. TSDF runs in chunks (``tsdf_fuse_chunked``, which
+    reads the depth maps from ``dataset``) when ``cfg.chunk_voxels`` is set or ``executor`` is a distributed one."""
     if cfg.mesher == "tsdf" and not cfg.watertight:
+        if dataset is not None and (cfg.chunk_voxels or getattr(executor, "distributed", False)):
+            return tsdf_fuse_chunked(dataset, frames, cfg, sparse_points, executor, work_dir)
         return tsdf_fuse(frames, cfg, sparse_points)
     if cfg.watertight and cfg.mesher != "poisson":
         raise BadArgumentError(f"--watertight needs --mesher poisson (got --mesher {cfg.mesher})")
@@ -740,6 +967,28 @@ def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = F
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
 
 
+def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
+    """One view's depth frame (see ``load_frames``); None when no pixel is left valid."""
+    raw = dataset.depth(v)
+    dv = depth_view(v, raw.shape)
+    conf = dataset.confidence(v)
+    if conf is not None and conf.shape != raw.shape:
+        raise InputDataError(f"view {v.name}: confidence map has shape {conf.shape}, its depth map {raw.shape}; "
+                             "expected the same (H, W)")
+    depth = prepare_depth(dv, raw, cfg, _resize_to(dataset.mask(v), raw.shape), conf)
+    if not np.count_nonzero(depth):
+        return None
+    try:
+        color = _resize_to(dataset.image(v), raw.shape)
+    except InputDataError:  # colour is optional for fusion
+        color = None
+    normal = dataset.normals(v)
+    if normal is not None and normal.shape != raw.shape + (3,):
+        raise InputDataError(f"view {v.name}: normal map has shape {normal.shape}, its depth map {raw.shape}; "
+                             "expected (H, W, 3)")
+    return DepthFrame(dv, depth, color, conf, normal)
+
+
 def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> list[DepthFrame]:
     """Depth frames of a ``Dataset`` (views without a depth map are skipped with a warning).
 
@@ -751,25 +1000,11 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> 
         if not dataset.has_depth(v):
             missing.append(v.name)
             continue
-        raw = dataset.depth(v)
-        dv = depth_view(v, raw.shape)
-        conf = dataset.confidence(v)
-        if conf is not None and conf.shape != raw.shape:
-            raise InputDataError(f"view {v.name}: confidence map has shape {conf.shape}, its depth map {raw.shape}; "
-                                 "expected the same (H, W)")
-        depth = prepare_depth(dv, raw, cfg, _resize_to(dataset.mask(v), raw.shape), conf)
-        if not np.count_nonzero(depth):
+        f = load_frame(dataset, v, cfg)
+        if f is None:
             log.warning("view %s: depth map has no valid pixel; skipped", v.name)
             continue
-        try:
-            color = _resize_to(dataset.image(v), raw.shape)
-        except InputDataError:  # colour is optional for fusion
-            color = None
-        normal = dataset.normals(v)
-        if normal is not None and normal.shape != raw.shape + (3,):
-            raise InputDataError(f"view {v.name}: normal map has shape {normal.shape}, its depth map {raw.shape}; "
-                                 "expected (H, W, 3)")
-        frames.append(DepthFrame(dv, depth, color, conf, normal))
+        frames.append(f)
     if missing:
         log.warning("%d view(s) without a depth map in %s skipped: %s", len(missing), dataset.depth_dir,
                     ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
@@ -779,9 +1014,11 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> 
 
 
 def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, depth_dir=None,
-                 overwrite: bool = False, formats: tuple[str, ...] = ("ply",), masks_dir=None):
+                 overwrite: bool = False, formats: tuple[str, ...] = ("ply",), masks_dir=None, cluster=None):
     """``photorecon fuse``: dataset folder (synth layout) -> ``out/mesh.ply`` (+ other formats, preview.png).
-    ``masks_dir``: masks (NAME.png or NAME.EXT.png, 0 = ignore) instead of DATASET/masks. Returns the mesh path."""
+    ``masks_dir``: masks (NAME.png or NAME.EXT.png, 0 = ignore) instead of DATASET/masks. ``cluster``: a
+    ``distributed.ClusterConfig`` (TSDF then in chunks, one task each; pieces under OUT/.work). Returns the mesh path."""
+
     from .io.dataset import Dataset
     from .io.output import prepare_output
     from .layout import Layout
@@ -792,7 +1029,10 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     ds = Dataset.open(root, depth_dir, masks_dir)
     frames = load_frames(ds, cfg)
     out = prepare_output(out, overwrite, inputs=(root,) + ((masks_dir,) if masks_dir else ()))
-    mesh = fuse(frames, cfg, ds.model.points)
+    from .distributed import executor
+
+    with executor(cluster) as ex:
+        mesh = fuse(frames, cfg, ds.model.points, ex, ds, Layout(out).work)
     mesh = clean(mesh, clean_cfg or CleanConfig(), cameras=[f.view for f in frames])
     layout = Layout(out)
     path = layout.mesh("ply")

@@ -81,6 +81,11 @@ class Layout:
         return self.root / "preview_mesh.ply"
 
     @property
+    def work(self) -> Path:
+        """Intermediate task outputs (depth and fusion tasks), kept across an interruption for a re-run."""
+        return self.root / ".work"
+
+    @property
     def textured(self) -> Path:
         """``reconstruct --texture`` / ``photorecon texture``: mesh.obj + mesh.mtl + texture.png, mesh.glb."""
         return self.root / "textured"

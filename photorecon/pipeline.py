@@ -37,6 +37,7 @@ import numpy as np
 
 from . import __version__
 from .depth.mvs import MVSConfig
+from .distributed import ClusterConfig, make_executor
 from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesError
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
@@ -74,6 +75,7 @@ class StageConfigs:
     clean: CleanConfig = field(default_factory=CleanConfig)
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
 
 
 def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
@@ -173,6 +175,14 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     warnings: list[str] = []
     handler = _WarningCollector(warnings)
     log.addHandler(handler)
+    executors: list = []  # the depth and fusion tasks' executor, made (a cluster started) when first needed
+    work = layout.work  # intermediate task outputs, kept across an interruption: a re-run reuses them
+
+    def executor():
+        if not executors:
+            executors.append(make_executor(cfgs.cluster))
+        return executors[0]
+
     try:
         # 1. poses: OUT/images, OUT/sparse/0, OUT/transforms.json
         def poses() -> dict:
@@ -208,10 +218,11 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 if source == "mono":
                     from .depth.mono import MonoConfig, run_mono
 
-                    rep = run_mono(ds, run.depth_model, tmp_depth, MonoConfig(preset=run.depth_preset))
+                    rep = run_mono(ds, run.depth_model, tmp_depth, MonoConfig(preset=run.depth_preset), executor(),
+                                   work / "depth")
                     info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
                 elif source == "mvs":
-                    rep = run_mvs(ds, tmp_depth, cfgs.mvs)
+                    rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"]}
                 else:
@@ -235,7 +246,8 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
         def fusion() -> dict:
             frames = load_frames(ds, cfgs.fusion)
-            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points), cfgs.clean, cameras=ds.views)
+            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points, executor(), ds, work / "fusion"), cfgs.clean,
+                         cameras=ds.views)
             for fmt in formats:
                 export(mesh, layout.mesh(fmt))
             fused["mesh"] = mesh
@@ -265,6 +277,12 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
             stages.run("texture", asdict(cfgs.texture), texture, outputs=[layout.textured])
     finally:
         log.removeHandler(handler)
+        for ex in executors:
+            ex.close()
+    try:
+        work.rmdir()  # empty once every stage finished
+    except OSError:
+        pass
     report = {
         "photorecon": __version__, "python": platform.python_version(), "versions": _versions(),
         "input": str(images), "output": str(out),
@@ -280,7 +298,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
 def asdict_shallow(cfgs: StageConfigs) -> dict:
     return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean,
-            "scale": cfgs.scale, "texture": cfgs.texture}
+            "scale": cfgs.scale, "texture": cfgs.texture, "cluster": cfgs.cluster}
 
 
 class _WarningCollector(logging.Handler):

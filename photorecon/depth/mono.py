@@ -29,9 +29,9 @@ import numpy as np
 
 from ..cameras import View
 from ..errors import BadArgumentError, InputDataError, NoDepthError
-from ..io.atomic import atomic_write_json
+from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
-from ..progress import bar
+from ..tasks import IN_PROCESS, Executor, Task
 from .align import Fit, fit_scale_shift
 
 log = logging.getLogger("photorecon")
@@ -198,19 +198,55 @@ def to_depth(pred: np.ndarray, fit: Fit, output: str) -> np.ndarray:
     return d.astype(np.float32)
 
 
-def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None, cfg: MonoConfig | None = None) -> dict:
+_NETS: dict[tuple, "MonoModel"] = {}  # per process: the model session, made once per worker
+
+
+def _mono_task(ctx: tuple, name: str) -> dict:
+    """One view's raw prediction to ``work/NAME.npy`` (atomically; a task whose file is there returns at once)."""
+    dataset, model_path, cfg, work = ctx
+    path = Path(work) / f"{name}.npy"
+    if path.is_file():
+        return {"seconds": 0.0, "reused": True}
+    key = (str(model_path), Path(model_path).stat().st_mtime_ns, repr(cfg))
+    if key not in _NETS:
+        _NETS.clear()
+        _NETS[key] = MonoModel(model_path, cfg)
+    view = next(v for v in dataset.views if v.name == name)
+    t0 = time.perf_counter()
+    pred = _NETS[key].predict([dataset.image(view)], [name])[0]
+    with atomic_path(path) as tmp:
+        np.save(tmp, pred.astype(np.float32))
+    return {"seconds": time.perf_counter() - t0}
+
+
+def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None, cfg: MonoConfig | None = None,
+             executor: Executor | None = None, work_dir: str | Path | None = None) -> dict:
     """Monocular depth for every view of a ``Dataset`` (synth layout out: NAME.npy + NAME.png). Views with too
-    few SfM points or a bad fit are excluded and reported. Raises ``NoDepthError`` if none is left."""
+    few SfM points or a bad fit are excluded and reported. Raises ``NoDepthError`` if none is left.
+
+    The predictions are one task per view run by ``executor`` (default: in this process; a Dask cluster through
+    ``photorecon.distributed``), each written to ``work_dir`` (default OUT_DIR/.mono_work; removed on success,
+    reused by a resumed run); the alignment and the depth files follow here."""
+    import hashlib
+    import shutil
+
     cfg = cfg or MonoConfig()
-    net = MonoModel(model_path, cfg)
+    net = MonoModel(model_path, cfg)  # a bad model fails here, before any task
     out = Path(out_dir) if out_dir else dataset.layout.depth
     out.mkdir(parents=True, exist_ok=True)
     model = dataset.model
-    preds, samples = {}, {}
+    samples = {}
+    st = Path(model_path).stat()
+    tag = hashlib.sha256(repr((str(Path(model_path).resolve()), st.st_size, st.st_mtime_ns, repr(cfg),
+                               [(v.name, str(dataset.image_path(v))) for v in dataset.views])).encode()).hexdigest()[:16]
+    work_root = Path(work_dir) if work_dir else out / ".mono_work"
+    work = work_root / tag
+    ex = executor or IN_PROCESS
     t0 = time.perf_counter()
-    for v in bar(dataset.views, desc="mono depth"):
-        preds[v.name] = net.predict([dataset.image(v)], [v.name])[0]
-    t_infer = (time.perf_counter() - t0) / max(len(preds), 1)
+    task_info = ex.run(_mono_task, [Task(v.name, (v.name,)) for v in dataset.views], (dataset, str(model_path), cfg, work),
+                       desc="mono depth")
+    t_infer = sum(r["seconds"] for r in task_info.values()) / max(len(task_info), 1)
+    preds = {v.name: np.load(work / f"{v.name}.npy") for v in dataset.views}
     t0 = time.perf_counter()
     shift = cfg.output != "metric"
     fits: dict[str, Fit] = {}
@@ -251,6 +287,11 @@ def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None,
               "inference_ms_per_image": 1000 * t_infer, "alignment_ms_per_image": 1000 * t_align,
               "fits": {n: f.as_dict() for n, f in fits.items()}}
     atomic_write_json(out / "mono_report.json", report)
+    shutil.rmtree(work, ignore_errors=True)
+    try:
+        work_root.rmdir()
+    except OSError:
+        pass
     if not written:
         raise NoDepthError("mono: every view was excluded (" + "; ".join(f"{k}: {m}" for k, m in list(excluded.items())[:3]) + ")")
     return report

@@ -23,9 +23,11 @@ Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -36,7 +38,7 @@ from ..cameras import View, backproject_depth, invert_rigid, project, transform_
 from ..errors import NoDepthError
 from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
-from ..progress import bar
+from ..tasks import IN_PROCESS, Executor, Task
 
 log = logging.getLogger("photorecon")
 
@@ -261,41 +263,50 @@ def _nearest_pixel(uv: np.ndarray, z: np.ndarray, intr) -> np.ndarray:
     return ij
 
 
+def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
+    """For each depth of ``r``: how many of its ``sources`` (name -> result) confirm it (reprojection within
+    ``reproj_px`` and relative depth within ``rel_depth``). Returns (counts (h, w) int32, sum and number of the
+    agreeing pairs' forward-backward reprojection errors in pixels)."""
+    d = r.depth
+    valid = d > 0
+    cnt = np.zeros(d.shape, np.int32)
+    err_sum, err_n = 0.0, 0
+    pts, uv = backproject_depth(np.where(valid, d, 0), r.view.intrinsics, r.view.cam_from_world, return_pixels=True)
+    for sname in r.sources:
+        s = sources.get(sname)
+        if s is None or not len(pts):
+            continue
+        # into the source: its depth at the nearest pixel ...
+        intr = s.view.intrinsics
+        uv_s, z = project(pts, intr, s.view.cam_from_world)
+        ij = _nearest_pixel(uv_s, z, intr)
+        ok = ij[:, 0] >= 0
+        ds = np.zeros(len(pts), np.float32)
+        ds[ok] = s.depth[ij[ok, 1], ij[ok, 0]]
+        ok &= ds > 0
+        # ... and back: that depth -> world -> reference pixel and depth
+        pw = transform_points(invert_rigid(s.view.cam_from_world), intr.pixel_rays(ij[ok]) * ds[ok, None])
+        uv_r, zr = project(pw, r.view.intrinsics, r.view.cam_from_world)
+        err = np.linalg.norm(uv_r - uv[ok], axis=1)
+        d_ref = d[valid][ok]
+        good = (err < cfg.reproj_px) & (np.abs(zr - d_ref) / d_ref < cfg.rel_depth)
+        agree = np.zeros(len(pts), bool)
+        agree[np.flatnonzero(ok)] = good
+        err_sum += float(err[good].sum())
+        err_n += int(good.sum())
+        cnt[valid] += agree
+    return cnt, err_sum, err_n
+
+
 def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
-    """Keep depths that at least ``min_consistent`` other views confirm (reprojection within ``reproj_px``
-    and relative depth within ``rel_depth``); returns the per-view count of agreeing views. ``stats`` gets
-    the mean forward-backward reprojection error (pixels) of the agreeing pairs."""
+    """Keep depths that at least ``min_consistent`` other views confirm (``consistency_count`` per view); returns
+    the per-view count of agreeing views. ``stats`` gets the mean forward-backward reprojection error (pixels)
+    of the agreeing pairs."""
     counts = {}
     err_sum, err_n = 0.0, 0
     for name, r in results.items():
-        d = r.depth
-        valid = d > 0
-        cnt = np.zeros(d.shape, np.int32)
-        pts, uv = backproject_depth(np.where(valid, d, 0), r.view.intrinsics, r.view.cam_from_world, return_pixels=True)
-        for sname in r.sources:
-            s = results.get(sname)
-            if s is None or not len(pts):
-                continue
-            # into the source: its depth at the nearest pixel ...
-            intr = s.view.intrinsics
-            uv_s, z = project(pts, intr, s.view.cam_from_world)
-            ij = _nearest_pixel(uv_s, z, intr)
-            ok = ij[:, 0] >= 0
-            ds = np.zeros(len(pts), np.float32)
-            ds[ok] = s.depth[ij[ok, 1], ij[ok, 0]]
-            ok &= ds > 0
-            # ... and back: that depth -> world -> reference pixel and depth
-            pw = transform_points(invert_rigid(s.view.cam_from_world), intr.pixel_rays(ij[ok]) * ds[ok, None])
-            uv_r, zr = project(pw, r.view.intrinsics, r.view.cam_from_world)
-            err = np.linalg.norm(uv_r - uv[ok], axis=1)
-            d_ref = d[valid][ok]
-            good = (err < cfg.reproj_px) & (np.abs(zr - d_ref) / d_ref < cfg.rel_depth)
-            agree = np.zeros(len(pts), bool)
-            agree[np.flatnonzero(ok)] = good
-            err_sum += float(err[good].sum())
-            err_n += int(good.sum())
-            cnt[valid] += agree
-        counts[name] = cnt
+        counts[name], e, n = consistency_count(r, results, cfg)
+        err_sum, err_n = err_sum + e, err_n + n
     if stats is not None:
         stats["mean_reprojection_px"] = err_sum / err_n if err_n else float("nan")
     return counts
@@ -315,28 +326,212 @@ def _triangulated(dataset):
     return model
 
 
-def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None) -> dict:
+# --- the depth stage as a task graph (in-process by default, or on a Dask cluster: photorecon.distributed) ---
+@dataclass
+class _MVSContext:
+    """What every MVS task needs (sent once to each worker): the dataset, the settings, the plan (view name ->
+    (working-resolution view, source names, depth range, seed points)) and the folders. Arrays between tasks
+    go through ``work`` (each file written atomically), results to ``out``."""
+
+    dataset: object
+    cfg: MVSConfig
+    plan: dict[str, tuple[View, list[str], tuple[float, float], np.ndarray]]
+    work: Path
+    out: Path
+
+
+def _dataset_view(ctx: _MVSContext, name: str) -> View:
+    return next(v for v in ctx.dataset.views if v.name == name)
+
+
+_GREY_CACHE: dict[tuple, np.ndarray] = {}  # per process: the last few working-resolution grey images
+
+
+def _working_grey(ctx: _MVSContext, name: str) -> np.ndarray:
+    """View ``name``'s grey image (float32 0..1) at its working resolution, from a small per-process cache."""
+    v = _dataset_view(ctx, name)
+    wv = ctx.plan[name][0] if name in ctx.plan else _working_view(v, ctx.cfg.max_size)
+    path = ctx.dataset.image_path(v)
+    try:
+        key = (str(path), path.stat().st_mtime_ns, wv.intrinsics.size)
+    except OSError:
+        key = (str(path), None, wv.intrinsics.size)
+    g = _GREY_CACHE.get(key)
+    if g is None:
+        g = _gray(ctx.dataset.image(v))
+        if g.shape != (wv.intrinsics.height, wv.intrinsics.width):
+            g = cv2.resize(g, wv.intrinsics.size, interpolation=cv2.INTER_AREA)
+        while len(_GREY_CACHE) >= 12:
+            _GREY_CACHE.pop(next(iter(_GREY_CACHE)))
+        _GREY_CACHE[key] = g
+    return g
+
+
+def _level_image(ctx: _MVSContext, name: str, lv: View) -> np.ndarray:
+    g = _working_grey(ctx, name)
+    if g.shape != (lv.intrinsics.height, lv.intrinsics.width):
+        g = cv2.resize(g, lv.intrinsics.size, interpolation=cv2.INTER_AREA)
+    return g
+
+
+def _save(path: Path, array: np.ndarray) -> None:
+    with atomic_path(path) as tmp:
+        np.save(tmp, array)
+
+
+def _load(path: Path) -> np.ndarray:
+    try:
+        return np.load(path)
+    except (OSError, ValueError) as exc:
+        raise NoDepthError(f"mvs: intermediate file {path} is missing or unreadable ({exc.__class__.__name__}); "
+                           "was the work folder removed while the run went on?") from None
+
+
+def _raw_path(ctx: _MVSContext, name: str, what: str) -> Path:
+    return ctx.work / "raw" / f"{name}.{what}.npy"
+
+
+def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarray, normal: np.ndarray | None) -> None:
+    """A view's unfiltered result: low-confidence, non-finite and masked pixels to 0; to ``work/raw`` (depth last:
+    the file that says the view is done)."""
+    depth[(conf < ctx.cfg.min_confidence) | ~np.isfinite(depth)] = 0
+    mask = ctx.dataset.mask(_dataset_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
+    if mask is not None:
+        h, w = depth.shape
+        if mask.shape != (h, w):
+            mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        depth[~mask] = 0
+    _save(_raw_path(ctx, name, "conf"), conf.astype(np.float32))
+    if normal is not None:
+        _save(_raw_path(ctx, name, "normal"), normal.astype(np.float16))
+    _save(_raw_path(ctx, name, "depth"), depth.astype(np.float32))
+
+
+def _raw_result(ctx: _MVSContext, name: str, normal: bool = False) -> DepthResult:
+    n_path = _raw_path(ctx, name, "normal")
+    return DepthResult(_load(_raw_path(ctx, name, "depth")), _load(_raw_path(ctx, name, "conf")), ctx.plan[name][0],
+                       ctx.plan[name][1], _load(n_path) if normal and n_path.is_file() else None)
+
+
+def _pm_jobs(ctx: _MVSContext) -> dict:
+    from .patchmatch import PMJob
+
+    return {n: PMJob(wv, srcs, rng[0], rng[1], seeds) for n, (wv, srcs, rng, seeds) in ctx.plan.items()}
+
+
+def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
+    """One task: ``"sweep"`` (a view's plane sweep), ``"pm"`` (round ``r`` of a view's PatchMatch) or
+    ``"filter"`` (a view's geometric consistency against its sources, then its files in ``out``). A task whose
+    output is already in ``work`` (a retry, a resumed run) returns at once."""
+    cfg = ctx.cfg
+    t0 = time.perf_counter()
+    if kind == "sweep":
+        if _raw_path(ctx, name, "depth").is_file():
+            return {"seconds": 0.0, "reused": True}
+        ref_w, srcs, rng, _ = ctx.plan[name]
+        src = [(_working_grey(ctx, s), ctx.plan[s][0]) for s in srcs]
+        depth, conf = plane_sweep(_working_grey(ctx, name), ref_w, src, rng[0], rng[1], cfg)
+        _finish_depth(ctx, name, depth, conf, None)
+        return {"seconds": time.perf_counter() - t0}
+    if kind == "pm":
+        from .patchmatch import PatchMatchParams, pm_rounds, pm_view_round
+
+        last = r == len(pm_rounds(cfg)) - 1
+        done = _raw_path(ctx, name, "depth") if last else ctx.work / f"r{r}" / f"{name}.depth.npy"
+        if done.is_file():
+            return {"seconds": 0.0, "reused": True}
+        jobs = _pm_jobs(ctx)
+
+        def load(n: str, rr: int, what: str) -> np.ndarray:
+            return _load(ctx.work / f"r{rr}" / f"{n}.{what}.npy")
+
+        depth, normal, cost, _ = pm_view_round(jobs[name], r, jobs, lambda n, lv: _level_image(ctx, n, lv),
+                                               PatchMatchParams(cfg), load)
+        seconds = time.perf_counter() - t0
+        if last:
+            _finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
+        else:
+            _save(ctx.work / f"r{r}" / f"{name}.normal.npy", normal)
+            _save(ctx.work / f"r{r}" / f"{name}.cost.npy", cost)
+            _save(done, depth)
+        return {"seconds": seconds}
+    if kind == "filter":
+        res = _raw_result(ctx, name, normal=True)
+        before = int((res.depth > 0).sum())
+        err_sum, err_n = 0.0, 0
+        if cfg.min_consistent > 0:
+            sources = {s: _raw_result(ctx, s) for s in res.sources}
+            cnt, err_sum, err_n = consistency_count(res, sources, cfg)
+            res.depth[cnt < cfg.min_consistent] = 0
+        d = res.depth
+        info = {"before": before, "after": int((d > 0).sum()), "err_sum": err_sum, "err_n": err_n,
+                "seconds": time.perf_counter() - t0}
+        if not np.count_nonzero(d):
+            return {**info, "written": False}
+        write_depth(ctx.out, name, d, np.where(d > 0, res.confidence, 0).astype(np.float32))
+        if res.normal is not None:
+            _save(ctx.out / f"{name}.normal.npy", np.where(d[..., None] > 0, res.normal, 0).astype(np.float16))
+        return {**info, "written": True, "valid_fraction": float((d > 0).mean()), "sources": res.sources,
+                "size": [int(d.shape[1]), int(d.shape[0])]}
+    raise ValueError(f"mvs task: unknown kind {kind!r}")
+
+
+def mvs_tasks(ctx: _MVSContext) -> list[Task]:
+    """The depth stage's task graph: per view its plane sweep, or its PatchMatch rounds (round r of a view after
+    round r - 1 of itself and, with the geometric term, of its sources), then its consistency filter (after its
+    own and its sources' last round)."""
+    cfg = ctx.cfg
+    names = list(ctx.plan)
+    tasks: list[Task] = []
+    if cfg.method == "sweep":
+        last = {n: f"sweep:{n}" for n in names}
+        tasks += [Task(last[n], ("sweep", n)) for n in names]
+    else:
+        from .patchmatch import pm_rounds, round_dependencies
+
+        jobs = _pm_jobs(ctx)
+        n_rounds = len(pm_rounds(cfg))
+        for r in range(n_rounds):
+            tasks += [Task(f"pm{r}:{n}", ("pm", n, r), tuple(f"pm{r - 1}:{d}" for d in round_dependencies(jobs[n], r, jobs, cfg)))
+                      for n in names]
+        last = {n: f"pm{n_rounds - 1}:{n}" for n in names}
+    for n in names:
+        deps = [last[n]] + ([last[s] for s in ctx.plan[n][1] if s in last] if cfg.min_consistent > 0 else [])
+        tasks.append(Task(f"filter:{n}", ("filter", n), tuple(dict.fromkeys(deps))))
+    return tasks
+
+
+def _work_key(dataset, cfg: MVSConfig, plan: dict) -> str:
+    """A hash of the settings, the plan and the images (names, sizes, times): a resumed run reuses the work of
+    an interrupted one only when all of them are the same."""
+    rows = []
+    for name, (wv, srcs, rng, seeds) in sorted(plan.items()):
+        p = Path(dataset.image_path(next(v for v in dataset.views if v.name == name)))
+        st = p.stat() if p.is_file() else None
+        rows.append([name, srcs, list(rng), wv.intrinsics.size, np.asarray(wv.cam_from_world).round(12).tolist(),
+                     len(seeds), st and st.st_size, st and st.st_mtime_ns])
+    blob = json.dumps({"cfg": asdict(cfg), "plan": rows, "masks": str(dataset.masks_dir)}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
+            work_dir: str | Path | None = None) -> dict:
     """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
     with the same aspect ratio when the images exceed ``max_size``), confidences, normals and previews
     to ``out_dir`` (default: DATASET/depth). Returns a report dict. Raises ``NoDepthError`` if no view
-    yields depth."""
+    yields depth.
+
+    The work is a task graph (``mvs_tasks``) run by ``executor`` (default: in this process, one task after the
+    other; ``photorecon.distributed`` runs it on a Dask cluster). Intermediate maps go to ``work_dir`` (default
+    OUT_DIR/.mvs_work), in a sub-folder named after a hash of the settings and inputs: an interrupted run's
+    finished tasks are reused by the next run with the same settings; the sub-folder is removed on success."""
+    import shutil
+
     cfg = cfg or MVSConfig()
+    ex = executor or IN_PROCESS
     model = dataset.model
     out = Path(out_dir) if out_dir else dataset.layout.depth
     out.mkdir(parents=True, exist_ok=True)
-    grey: dict[str, np.ndarray] = {}
-    work: dict[str, View] = {}
-
-    def image(v: View):
-        if v.name not in grey:
-            wv = _working_view(v, cfg.max_size)
-            g = _gray(dataset.image(v))
-            if g.shape != (wv.intrinsics.height, wv.intrinsics.width):
-                g = cv2.resize(g, wv.intrinsics.size, interpolation=cv2.INTER_AREA)
-            grey[v.name], work[v.name] = g, wv
-        return grey[v.name], work[v.name]
-
-    results: dict[str, DepthResult] = {}
     skipped: dict[str, str] = {}
     t0 = time.perf_counter()
     triangulated = False
@@ -365,85 +560,55 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             continue
         plan.append((v, srcs, rng))
     planned = {v.name for v, _, _ in plan}
-    kept = []
+    views: dict[str, tuple] = {}
     for v, srcs, rng in plan:  # PatchMatch's geometric term reads the sources' own depth maps
         srcs = [s for s in srcs if s.name in planned]
         if srcs:
-            kept.append((v, srcs, rng))
+            views[v.name] = (_working_view(v, cfg.max_size), [s.name for s in srcs], rng,
+                             model.points_seen_by(v.name) if cfg.method == "patchmatch" else np.zeros((0, 3)))
         else:
             skipped[v.name] = "every source view of it was skipped"
             log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-    plan = kept
-    if cfg.method == "sweep":
-        for v, srcs, rng in bar(plan, desc="mvs depth (sweep)"):
-            ref_img, ref_w = image(v)
-            src = [image(s) for s in srcs]
-            depth, conf = plane_sweep(ref_img, ref_w, src, rng[0], rng[1], cfg)
-            depth[conf < cfg.min_confidence] = 0
-            results[v.name] = DepthResult(depth, conf, ref_w, [s.name for s in srcs])
-    elif plan:
-        from .patchmatch import PMJob, patchmatch_all
-
-        views = {v.name: v for v in model.views}
-
-        def level_image(name: str, lv: View) -> np.ndarray:
-            g, _ = image(views[name])
-            if g.shape != (lv.intrinsics.height, lv.intrinsics.width):
-                g = cv2.resize(g, lv.intrinsics.size, interpolation=cv2.INTER_AREA)
-            return g
-
-        jobs = {v.name: PMJob(image(v)[1], [s.name for s in srcs], rng[0], rng[1], model.points_seen_by(v.name))
-                for v, srcs, rng in plan}
-        pm_out = patchmatch_all(list(jobs.values()), level_image, cfg)
-        grey.clear()  # every view's image is no longer needed: memory for the filter
-        while pm_out:
-            name, (depth, normal, cost, wv, _) = pm_out.popitem()
-            conf = np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32)
-            del cost
-            depth[(conf < cfg.min_confidence) | ~np.isfinite(depth)] = 0
-            results[name] = DepthResult(depth, conf, wv, jobs[name].sources, normal)
-    for v, _, _ in plan:  # masked pixels (masks/NAME.png or the image's alpha) have no depth
-        r = results.get(v.name)
-        mask = dataset.mask(v) if r is not None else None
-        if mask is not None:
-            h, w = r.depth.shape
-            if mask.shape != (h, w):
-                mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
-            r.depth[~mask] = 0
-    t_depth = time.perf_counter() - t0
-    if not results:
+    if not views:
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    work = Path(work_dir) if work_dir else out / ".mvs_work"
+    ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out)
+    t_graph = time.perf_counter()
+    results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method})")
+    t_graph = time.perf_counter() - t_graph
+    _GREY_CACHE.clear()
+    t_all = time.perf_counter() - t0
+    task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
     consistency: dict = {}
+    filtered = {k.partition(":")[2]: r for k, r in results.items() if k.startswith("filter:")}
     if cfg.min_consistent > 0:
-        counts = geometric_filter(results, cfg, consistency)
-        before = sum(int((r.depth > 0).sum()) for r in results.values())
-        for name, r in results.items():
-            r.depth[counts[name] < cfg.min_consistent] = 0
-        after = sum(int((r.depth > 0).sum()) for r in results.values())
-        consistency["kept_fraction"] = after / before if before else 0.0
-    written = 0
+        err_n = sum(r["err_n"] for r in filtered.values())
+        consistency["mean_reprojection_px"] = sum(r["err_sum"] for r in filtered.values()) / err_n if err_n else float("nan")
+        before = sum(r["before"] for r in filtered.values())
+        consistency["kept_fraction"] = sum(r["after"] for r in filtered.values()) / before if before else 0.0
     stats = {}
     for v in model.views:
-        r = results.get(v.name)
+        r = filtered.get(v.name)
         if r is None:
             continue
-        d, c = r.depth, np.where(r.depth > 0, r.confidence, 0).astype(np.float32)
-        if not np.count_nonzero(d):
+        if not r["written"]:
             log.warning("mvs: view %s: no depth survived filtering", v.name)
             skipped[v.name] = "no depth survived filtering"
             continue
-        write_depth(out, v.name, d, c)
-        if r.normal is not None:
-            with atomic_path(out / f"{v.name}.normal.npy") as tmp:
-                np.save(tmp, np.where(d[..., None] > 0, r.normal, 0).astype(np.float16))
-        stats[v.name] = {"valid_fraction": float((d > 0).mean()), "sources": r.sources,
-                         "size": [int(d.shape[1]), int(d.shape[0])]}
-        written += 1
-    if not written:
+        stats[v.name] = {k: r[k] for k in ("valid_fraction", "sources", "size")}
+    if not stats:
         raise NoDepthError("mvs: no depth survived filtering in any view")
-    report = {"views": written, "skipped": skipped, "method": cfg.method, "depth_seconds": t_depth,
-              "sparse_points": int(len(model.points)), "triangulated": triangulated,
-              "triangulation_seconds": t_tri, "consistency": consistency,
-              "seconds_per_view": t_depth / max(len(results), 1), "per_view": stats}
+    shutil.rmtree(ctx.work, ignore_errors=True)
+    try:
+        work.rmdir()  # only when no other run's work is left in it
+    except OSError:
+        pass
+    # depth_seconds: the depth tasks' own time (summed over workers); wall_seconds: the whole graph, filter included
+    report = {"views": len(stats), "skipped": skipped, "method": cfg.method, "depth_seconds": task_seconds,
+              "wall_seconds": t_all, "graph_seconds": t_graph, "workers": ex.workers, "sparse_points": int(len(model.points)),
+              "triangulated": triangulated, "triangulation_seconds": t_tri, "consistency": consistency,
+              "seconds_per_view": task_seconds / max(len(views), 1), "per_view": stats,
+              "reused_tasks": sum(1 for r in results.values() if r.get("reused")),
+              "task_seconds": {k: round(r["seconds"], 4) for k, r in results.items()}}
     atomic_write_json(out / "mvs_report.json", report)
     return report

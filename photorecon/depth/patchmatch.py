@@ -23,10 +23,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import tempfile
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import cv2
@@ -201,74 +199,94 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     return depth, normal, cost
 
 
+def pm_rounds(cfg) -> list[tuple[int, bool, int]]:
+    """The rounds of multi-scale PatchMatch, coarse to fine: (pyramid level, geometric term, iterations); ACMM's
+    extra geometric round at full resolution last."""
+    levels = max(1, int(cfg.pm_levels))
+    rounds = [(levels - 1, False, cfg.pm_iterations)]
+    rounds += [(lvl, cfg.geom_consistency, cfg.pm_fine_iterations) for lvl in reversed(range(levels - 1))]
+    if cfg.geom_consistency and cfg.pm_final_iterations > 0:
+        rounds.append((0, True, cfg.pm_final_iterations))
+    return rounds
+
+
+def round_sources(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> list[str]:
+    """The source views ``job`` matches in round ``r`` (all of them in the first, the best
+    ``pm_fine_sources`` after), among the views being computed."""
+    names = job.sources if r == 0 or cfg.pm_fine_sources <= 0 else job.sources[: cfg.pm_fine_sources]
+    return [s for s in names if s in by_name]
+
+
+def round_dependencies(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> list[str]:
+    """The views whose round ``r - 1`` round ``r`` of ``job`` reads: itself (its starting planes), and with the
+    geometric term its sources (their depth maps)."""
+    if r == 0:
+        return []
+    geometric = pm_rounds(cfg)[r][1]
+    return [job.view.name] + (round_sources(job, r, by_name, cfg) if geometric else [])
+
+
+def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable[[str, View], np.ndarray],
+                  params: PatchMatchParams, load: Callable[[str, int, str], np.ndarray]):
+    """Round ``r`` (of ``pm_rounds``) of PatchMatch for one reference view. ``image(name, view)``: the grey
+    float32 image of view ``name`` at ``view``'s resolution; ``load(name, round, what)``: the ``"depth"``,
+    ``"normal"`` or ``"cost"`` map of a view after an earlier round (``round_dependencies`` says which are
+    read). Returns (depth, normal, cost, view at this round's resolution)."""
+    cfg = params.cfg
+    rounds = pm_rounds(cfg)
+    lvl, geometric, iters = rounds[r]
+    first = r == 0
+    name = job.view.name
+    ref = level_view(job.view, lvl)
+    src_names = round_sources(job, r, by_name, cfg)
+    srcs = [level_view(by_name[s].view, lvl) for s in src_names]
+    init = c_init = geo = None
+    if not first:
+        prev_lvl = rounds[r - 1][0]
+        v_prev = level_view(job.view, prev_lvl)
+        d_prev, n_prev = load(name, r - 1, "depth"), load(name, r - 1, "normal")
+        if cfg.pm_reuse_cost:
+            c_init = cv2.resize(load(name, r - 1, "cost"), ref.intrinsics.size, interpolation=cv2.INTER_NEAREST)
+        if v_prev.intrinsics.size == ref.intrinsics.size:
+            init = (d_prev.copy(), n_prev)
+        else:
+            d = np.zeros((ref.intrinsics.height, ref.intrinsics.width), np.float32)
+            n = np.zeros(d.shape + (3,), np.float32)
+            _kernels().upsample_planes(d_prev, n_prev, np.linalg.inv(_pinhole_K(v_prev)),
+                                       np.linalg.inv(_pinhole_K(ref)), d, n)
+            init = (d, n)
+        if geometric and src_names:
+            geo = ([load(s, r - 1, "depth") for s in src_names], [level_view(by_name[s].view, prev_lvl) for s in src_names])
+    depth, normal, cost = patchmatch_view(
+        image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
+        params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
+        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine)
+    return depth, normal, cost, ref
+
+
 def patchmatch_all(jobs: list[PMJob], image: Callable[[str, View], np.ndarray], cfg) -> dict[str, tuple]:
-    """Multi-scale PatchMatch over every job, level by level (ACMM): all views at one level before any at the
-    next finer one, so the geometric term can use the other views' depth maps. ``image(name, view)`` returns
-    the grey float32 image of view ``name`` at ``view``'s resolution. Returns name -> (depth, normal (float16),
-    cost, view, seconds) at working resolution."""
+    """Multi-scale PatchMatch over every job in this process, round by round (ACMM): all views at one level
+    before any at the next finer one, so the geometric term can use the other views' depth maps. ``image(name,
+    view)`` returns the grey float32 image of view ``name`` at ``view``'s resolution. Returns name -> (depth,
+    normal (float16), cost, view, seconds) at working resolution. (``mvs.run_mvs`` runs the same rounds as a
+    task graph through ``pm_view_round``, in-process or on a cluster.)"""
     params = PatchMatchParams(cfg)
     by_name = {j.view.name: j for j in jobs}
-    levels = max(1, int(cfg.pm_levels))
     timings: dict[str, float] = {}
-    prev: dict[str, tuple[np.ndarray, View]] = {}  # name -> (depth, view) of the previous level
-    with tempfile.TemporaryDirectory(prefix="photorecon_pm_") as tmp:
-        tmp = Path(tmp)
-        # (level, geometric term, iterations): coarse to fine, then ACMM's extra round at full resolution
-        rounds = [(levels - 1, False, cfg.pm_iterations)]
-        rounds += [(lvl, cfg.geom_consistency, cfg.pm_fine_iterations) for lvl in reversed(range(levels - 1))]
-        if cfg.geom_consistency and cfg.pm_final_iterations > 0:
-            rounds.append((0, True, cfg.pm_final_iterations))
-        cur: dict[str, tuple[np.ndarray, View]] = {}
-        for r, (lvl, geometric, iters) in enumerate(rounds):
-            first = r == 0
-            cur = {}
-            t0 = time.perf_counter()
-            for job in bar(jobs, desc=f"patchmatch {r + 1}/{len(rounds)}"):
-                name = job.view.name
-                ref = level_view(job.view, lvl)
-                names = job.sources if first or cfg.pm_fine_sources <= 0 else job.sources[: cfg.pm_fine_sources]
-                srcs = [level_view(by_name[s].view, lvl) if s in by_name else None for s in names]
-                src_names = [s for s, v in zip(names, srcs) if v is not None]
-                srcs = [v for v in srcs if v is not None]
-                init = c_init = None
-                if not first:
-                    d_prev, v_prev = prev[name]
-                    n_prev = np.load(tmp / f"{name}.normal.npy")
-                    if cfg.pm_reuse_cost:
-                        c_init = cv2.resize(np.load(tmp / f"{name}.cost.npy"), ref.intrinsics.size,
-                                            interpolation=cv2.INTER_NEAREST)
-                    if v_prev.intrinsics.size == ref.intrinsics.size:
-                        init = (d_prev.copy(), n_prev)
-                    else:
-                        d = np.zeros((ref.intrinsics.height, ref.intrinsics.width), np.float32)
-                        n = np.zeros(d.shape + (3,), np.float32)
-                        _kernels().upsample_planes(d_prev, n_prev, np.linalg.inv(_pinhole_K(v_prev)),
-                                                   np.linalg.inv(_pinhole_K(ref)), d, n)
-                        init = (d, n)
-                geo = None
-                if geometric:
-                    have = [s for s in src_names if s in prev]
-                    if have:
-                        geo = ([prev[s][0] for s in src_names if s in prev], [prev[s][1] for s in src_names if s in prev])
-                        if len(have) != len(src_names):
-                            geo = None
-                t1 = time.perf_counter()
-                depth, normal, cost = patchmatch_view(
-                    image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
-                    params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
-                    init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine)
-                timings[name] = timings.get(name, 0.0) + time.perf_counter() - t1
-                np.save(tmp / f"{name}.normal.npy", normal)
-                np.save(tmp / f"{name}.cost.npy", cost)
-                cur[name] = (depth, ref)
-            log.debug("patchmatch round %d (level %d, %s): %.1f s", r + 1, lvl, "geometric" if geometric else "photometric",
-                      time.perf_counter() - t0)
-            prev = cur
-        out = {}
-        for name, (depth, view) in cur.items():  # normals as float16 (as written): 50 views of 1600 px hold 0.5 GB less
-            out[name] = (depth, np.load(tmp / f"{name}.normal.npy").astype(np.float16),
-                         np.load(tmp / f"{name}.cost.npy"), view, timings.get(name, 0.0))
-    return out
+    maps: dict[tuple[str, int, str], np.ndarray] = {}
+    rounds = pm_rounds(cfg)
+    out = {}
+    for r in range(len(rounds)):
+        for job in bar(jobs, desc=f"patchmatch {r + 1}/{len(rounds)}"):
+            name = job.view.name
+            t1 = time.perf_counter()
+            depth, normal, cost, ref = pm_view_round(job, r, by_name, image, params, lambda n, rr, w: maps[n, rr, w])
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t1
+            maps[name, r, "depth"], maps[name, r, "normal"], maps[name, r, "cost"] = depth, normal, cost
+            out[name] = (depth, normal.astype(np.float16), cost, ref)
+        for key in [k for k in maps if k[1] == r - 1]:  # the previous round is no longer read
+            del maps[key]
+    return {n: o + (timings.get(n, 0.0),) for n, o in out.items()}
 
 
 def ncc_cost_reference(ref: np.ndarray, src: np.ndarray, x: int, y: int, Hm: np.ndarray, radius: int, stride: int,
