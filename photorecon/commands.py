@@ -295,29 +295,42 @@ def _run_convert(args):
 def mvs(sub):
     from .depth.mvs import MVSConfig
 
-    p = sub.add_parser("mvs", help="dense depth by multi-view stereo on the CPU (no weights, no GPU)",
-                       description="Plane-sweep stereo with ZNCC from the dataset's cameras (sparse/0 or "
-                                   "transforms.json) and sparse points; writes depth/NAME.npy, NAME.conf.npy "
-                                   "and NAME.png to DATASET/depth (or -o DIR).")
-    p.add_argument("dataset", help="dataset folder (images/ + sparse/0 or transforms.json)")
-    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
+    p = _depth_parser(sub, "mvs", MVSConfig, _run_mvs,
+                      help="dense depth by multi-view stereo on the CPU (no weights, no GPU)",
+                      description="PatchMatch stereo (or --mvs sweep: a plane sweep) from the dataset's cameras "
+                                  "(sparse/0 or transforms.json) and sparse points; writes depth/NAME.npy, "
+                                  "NAME.conf.npy, NAME.normal.npy and NAME.png to DATASET/depth (or -o DIR).")
     _masks_arg(p, "no depth there (default: DATASET/masks, else the images' alpha channel)")
-    add_config_arguments(p, MVSConfig)
+
+
+def _depth_parser(sub, name: str, cfg_type, func, help: str, description: str,
+                  dataset_help: str = "dataset folder (images/ + sparse/0 or transforms.json)"):
+    """A depth command's parser: DATASET, -o, the config's flags and the cluster flags."""
+    p = sub.add_parser(name, help=help, description=description)
+    p.add_argument("dataset", help=dataset_help)
+    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
+    add_config_arguments(p, cfg_type)
     _cluster_args(p)
-    p.set_defaults(func=_run_mvs)
+    p.set_defaults(func=func)
+    return p
+
+
+def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
+    """Open the dataset, run ``run(ds, *extra, out, cfg, executor)`` on the chosen cluster (or in process)."""
+    from .distributed import ClusterConfig, executor
+    from .io.dataset import Dataset
+
+    ds = Dataset.open(args.dataset, masks_dir=masks)
+    with executor(config_from_args(ClusterConfig, args)) as ex:
+        return ds, run(ds, *extra, args.out, config_from_args(cfg_type, args), ex)
 
 
 def _run_mvs(args):
     from .depth.mvs import MVSConfig, run_mvs
-    from .io.dataset import Dataset
 
-    from .distributed import ClusterConfig, executor
-
-    ds = Dataset.open(args.dataset, masks_dir=args.masks)
-    with executor(config_from_args(ClusterConfig, args)) as ex:
-        rep = run_mvs(ds, args.out, config_from_args(MVSConfig, args), ex)
+    ds, rep = _run_depth_tasks(args, run_mvs, MVSConfig, masks=args.masks)
     where = args.out or f"{args.dataset}/depth"
-    print(f"mvs: depth for {rep['views']} of {len(ds.views)} views ({rep['seconds_per_view']:.2f} s/view) -> {where}")
+    print(f"mvs: depth for {rep.views} of {len(ds.views)} views ({rep.seconds_per_view:.2f} s/view) -> {where}")
     return 0
 
 
@@ -405,31 +418,23 @@ def _run_demo(args):
 def depth(sub):
     from .depth.mono import MonoConfig
 
-    p = sub.add_parser("depth", help="monocular depth from an ONNX model (MiDaS-style), aligned to the SfM points",
-                       description="Runs a user-supplied ONNX depth model (no weights ship, nothing is downloaded) "
-                                   "and aligns each prediction to the dataset's sparse points; writes "
-                                   "DATASET/depth/NAME.npy + NAME.png (or -o DIR).")
-    p.add_argument("dataset", help="dataset folder (images/ + sparse/0 with points)")
+    p = _depth_parser(sub, "depth", MonoConfig, _run_depth,
+                      help="monocular depth from an ONNX model (MiDaS-style), aligned to the SfM points",
+                      description="Runs a user-supplied ONNX depth model (no weights ship, nothing is downloaded) "
+                                  "and aligns each prediction to the dataset's sparse points; writes "
+                                  "DATASET/depth/NAME.npy + NAME.png (or -o DIR).",
+                      dataset_help="dataset folder (images/ + sparse/0 with points)")
     p.add_argument("--model", required=True, help="ONNX model file")
-    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
-    add_config_arguments(p, MonoConfig)
-    _cluster_args(p)
-    p.set_defaults(func=_run_depth)
 
 
 def _run_depth(args):
     from .depth.mono import MonoConfig, run_mono
-    from .io.dataset import Dataset
 
-    from .distributed import ClusterConfig, executor
-
-    ds = Dataset.open(args.dataset)
-    with executor(config_from_args(ClusterConfig, args)) as ex:
-        rep = run_mono(ds, args.model, args.out, config_from_args(MonoConfig, args), ex)
-    print(f"depth: {rep['views']} of {len(ds.views)} views aligned ({rep['inference_ms_per_image']:.0f} ms inference, "
-          f"{rep['alignment_ms_per_image']:.1f} ms alignment per image) -> {args.out or args.dataset + '/depth'}")
-    if rep["excluded"]:
-        print("  excluded: " + ", ".join(f"{k} ({v})" for k, v in rep["excluded"].items()))
+    ds, rep = _run_depth_tasks(args, run_mono, MonoConfig, args.model)
+    print(f"depth: {rep.views} of {len(ds.views)} views aligned ({rep.inference_ms_per_image:.0f} ms inference, "
+          f"{rep.alignment_ms_per_image:.1f} ms alignment per image) -> {args.out or args.dataset + '/depth'}")
+    if rep.excluded:
+        print("  excluded: " + ", ".join(f"{k} ({v})" for k, v in rep.excluded.items()))
     return 0
 
 

@@ -61,7 +61,7 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = F
                "seconds": {"synthesize": t_synth, **{k: v.get("seconds", 0) for k, v in report["stages"].items()},
                            "total": total}}
     atomic_write_json(out / "demo.json", summary)
-    write_html_report(rec, report, {"F-score at 1% (vs truth)": f"{m.fscore:.4f}",
+    write_html_report(rec, report.to_dict(), {"F-score at 1% (vs truth)": f"{m.fscore:.4f}",
                                     "Chamfer (% of diagonal)": f"{100 * m.chamfer / m.diagonal:.4f}",
                                     "rotation error (deg, mean)": f"{poses['rot_mean_deg']:.4f}"})
     return summary

@@ -129,20 +129,24 @@ def _available_bytes() -> int:
     return available_bytes()
 
 
-def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:
-    """Count the voxel blocks the depth maps touch (sampled), with the truncation band: the grid's size."""
+def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
+    """Unique ``_cell_keys`` of the voxel blocks that the frames' sampled surface points, moved by -trunc, 0 and
+    +trunc along their rays (the truncation band), fall in."""
     block = voxel * _BLOCK_RES
     keys = []
     for f in frames:
         pts = _sample_depth_points(f, 20000)
         if not len(pts):
             continue
-        c = camera_center(f.view.cam_from_world)
-        ray = pts - c
+        ray = pts - camera_center(f.view.cam_from_world)
         ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-        for s in (-trunc, 0.0, trunc):
-            keys.append(np.unique(_cell_keys(pts + s * ray, block)))
-    n = len(np.unique(np.concatenate(keys))) if keys else 0
+        keys.append(np.unique(_cell_keys(np.concatenate([pts + s * ray for s in (-trunc, 0.0, trunc)]), block)))
+    return np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+
+
+def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:
+    """Count the voxel blocks the depth maps touch (sampled), with the truncation band: the grid's size."""
+    n = len(_band_block_keys(frames, voxel, trunc))
     # sampled pixels miss blocks between samples when a pixel is smaller than a block: scale up
     return int(n * 1.5) + 64
 
@@ -395,18 +399,9 @@ class _ChunkContext:
 def _sample_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
     """Unique (N, 3) block coordinates the frames' sampled surfaces (and their truncation band) fall in,
     dilated by one block (samples are sparser than blocks at high resolution)."""
-    block = voxel * _BLOCK_RES
-    keys = []
-    for f in frames:
-        pts = _sample_depth_points(f, 20000)
-        if not len(pts):
-            continue
-        ray = pts - camera_center(f.view.cam_from_world)
-        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-        keys.append(np.unique(_cell_keys(np.concatenate([pts + s * ray for s in (-trunc, 0.0, trunc)]), block)))
-    if not keys:
+    k = _band_block_keys(frames, voxel, trunc)
+    if not len(k):
         return np.zeros((0, 3), np.int64)
-    k = np.unique(np.concatenate(keys))
     off = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
     k = np.unique((k[:, None] + ((off[:, 0] << 42) + (off[:, 1] << 21) + off[:, 2])[None]).ravel())
     mask = (1 << 21) - 1  # unpack _cell_keys' 21-bit fields

@@ -46,6 +46,7 @@ from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
 from .scale import ScaleConfig
 from .sfm import SfMConfig
 from .layout import Layout
+from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
 from .texture import TextureConfig
 
@@ -76,6 +77,26 @@ class StageConfigs:
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
+
+
+@dataclass
+class ReconstructResult(Result):
+    """What ``reconstruct`` did: report.json's content. The stage sections (``poses``, ``depth``, ``mesh``,
+    ``texture``) hold what each stage recorded (JSON-ready facts, also when the stage was cached)."""
+
+    photorecon: str  # version
+    python: str
+    versions: dict  # dependency -> version
+    input: str
+    output: str
+    parameters: dict  # stage -> its settings
+    stages: dict  # stage -> seconds, peak_mb, cached
+    poses: dict  # source, registered, unregistered, scale, sfm_seconds
+    depth: dict  # source, views, skipped / excluded, seconds_per_view
+    mesh: dict  # vertices, faces, depth_maps_fused, mesher, watertight, boundary_edges, invented_fraction
+    texture: dict  # with --texture: faces, charts, views_used, folder ...
+    warnings: list
+    units: str  # "metres" when a scale was found, else "arbitrary"
 
 
 def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
@@ -283,16 +304,14 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         work.rmdir()  # empty once every stage finished
     except OSError:
         pass
-    report = {
-        "photorecon": __version__, "python": platform.python_version(), "versions": _versions(),
-        "input": str(images), "output": str(out),
-        "parameters": {k: asdict(v) for k, v in asdict_shallow(cfgs).items()},
-        "stages": stages.stats, "poses": stages.info.get("poses", {}), "depth": stages.info.get("depth", {}),
-        "mesh": stages.info.get("fusion", {}), "texture": stages.info.get("texture", {}), "warnings": warnings,
-        "units": stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"),
-    }
-    atomic_write_json(layout.report_json, report)
-    write_html_report(out, report)
+    report = ReconstructResult(
+        photorecon=__version__, python=platform.python_version(), versions=_versions(), input=str(images),
+        output=str(out), parameters={k: asdict(v) for k, v in asdict_shallow(cfgs).items()}, stages=stages.stats,
+        poses=stages.info.get("poses", {}), depth=stages.info.get("depth", {}), mesh=stages.info.get("fusion", {}),
+        texture=stages.info.get("texture", {}), warnings=warnings,
+        units=stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"))
+    atomic_write_json(layout.report_json, report.to_dict())
+    write_html_report(out, report.to_dict())
     return report
 
 

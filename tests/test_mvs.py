@@ -1,4 +1,6 @@
 """Multi-view stereo on the CPU against rendered ground-truth depth."""
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -28,7 +30,10 @@ def mvs_depth(blob_fusion, tmp_path_factory):
 @pytest.mark.slow
 def test_mvs_depth_accuracy_and_coverage(mvs_depth, blob_fusion):
     ds, out, rep = mvs_depth
-    assert rep["views"] == len(ds.views)
+    assert rep.views == len(ds.views) == rep["views"]
+    # the typed result is what mvs_report.json holds
+    assert json.loads((out / "mvs_report.json").read_text()) == json.loads(json.dumps(rep.to_dict()))
+    assert set(rep.per_view) == {v.name for v in ds.views} and rep.method == "sweep"
     within, cover = [], []
     for v in ds.views:
         d = np.load(out / f"{v.name}.npy")

@@ -185,3 +185,18 @@ def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path)
     assert ran("--trunc-voxels", "4")[0] == ["preview"] and (out / "preview.png").is_file()
     assert ran("--trunc-voxels", "4", "--formats", "ply")[0] == ["fusion", "preview"]
     assert ran("--trunc-voxels", "4", "--formats", "ply", "--force")[0] == ["poses", "depth", "fusion", "preview"]
+
+
+def test_reconstruct_returns_a_typed_result(blob_small, tmp_path):
+    """Issue 15: the Python API returns a dataclass (fields typed and documented) that is report.json."""
+    from photorecon.pipeline import ReconstructConfig, ReconstructResult, StageConfigs, reconstruct
+
+    cfgs = StageConfigs(ReconstructConfig(poses=str(blob_small / "transforms.json"), depth=str(blob_small / "depth")))
+    res = reconstruct(blob_small / "images", tmp_path / "out", cfgs)
+    assert isinstance(res, ReconstructResult)
+    assert res.poses["registered"] == len(list((blob_small / "images").iterdir())) and res.mesh["faces"] > 1000
+    assert res.depth["source"] == str(blob_small / "depth") and res.units == "arbitrary"
+    assert json.loads((tmp_path / "out" / "report.json").read_text()) == json.loads(json.dumps(res.to_dict()))
+    assert res["mesh"] is res.mesh and "nonsense" not in res
+    with pytest.raises(KeyError):
+        res["nonsense"]

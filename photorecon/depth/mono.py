@@ -31,6 +31,7 @@ from ..cameras import View
 from ..errors import BadArgumentError, InputDataError, NoDepthError
 from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
+from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
 from .align import Fit, fit_scale_shift
 
@@ -219,6 +220,21 @@ def _mono_task(ctx: tuple, name: str) -> dict:
     return {"seconds": time.perf_counter() - t0}
 
 
+@dataclass
+class MonoResult(Result):
+    """What ``run_mono`` did (also written to OUT_DIR/mono_report.json)."""
+
+    model: str
+    providers: list
+    preset: str
+    input_size: list | str  # [H, W] of a fixed-size model, or "dynamic"
+    views: int  # depth maps written
+    excluded: dict  # view name -> reason (too few SfM points, a bad fit)
+    inference_ms_per_image: float
+    alignment_ms_per_image: float
+    fits: dict  # view name -> the scale/shift fit
+
+
 def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None, cfg: MonoConfig | None = None,
              executor: Executor | None = None, work_dir: str | Path | None = None) -> dict:
     """Monocular depth for every view of a ``Dataset`` (synth layout out: NAME.npy + NAME.png). Views with too
@@ -282,11 +298,11 @@ def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None,
             d[~mask] = 0
         write_depth(out, v.name, d)
         written += 1
-    report = {"model": str(model_path), "providers": net.providers, "preset": cfg.preset or "midas_small",
-              "input_size": list(net.fixed) if net.fixed else "dynamic", "views": written, "excluded": excluded,
-              "inference_ms_per_image": 1000 * t_infer, "alignment_ms_per_image": 1000 * t_align,
-              "fits": {n: f.as_dict() for n, f in fits.items()}}
-    atomic_write_json(out / "mono_report.json", report)
+    report = MonoResult(model=str(model_path), providers=net.providers, preset=cfg.preset or "midas_small",
+                        input_size=list(net.fixed) if net.fixed else "dynamic", views=written, excluded=excluded,
+                        inference_ms_per_image=1000 * t_infer, alignment_ms_per_image=1000 * t_align,
+                        fits={n: f.as_dict() for n, f in fits.items()})
+    atomic_write_json(out / "mono_report.json", report.to_dict())
     shutil.rmtree(work, ignore_errors=True)
     try:
         work_root.rmdir()

@@ -38,6 +38,7 @@ from ..cameras import View, backproject_depth, invert_rigid, project, transform_
 from ..errors import NoDepthError
 from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
+from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
 
 log = logging.getLogger("photorecon")
@@ -514,6 +515,27 @@ def _work_key(dataset, cfg: MVSConfig, plan: dict) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+@dataclass
+class MVSResult(Result):
+    """What ``run_mvs`` did (also written to OUT_DIR/mvs_report.json)."""
+
+    views: int  # views with a depth map written
+    skipped: dict  # view name -> one-line reason
+    method: str  # "patchmatch" or "sweep"
+    depth_seconds: float  # the depth tasks' own time, summed over workers
+    wall_seconds: float  # the whole run, filter included
+    graph_seconds: float  # the task graph alone
+    workers: int
+    sparse_points: int
+    triangulated: bool  # sparse points triangulated from SIFT matches with the given cameras
+    triangulation_seconds: float
+    consistency: dict  # the geometric consistency filter's statistics
+    seconds_per_view: float
+    per_view: dict  # view name -> valid_fraction, sources, size
+    reused_tasks: int  # tasks whose output an interrupted run had left
+    task_seconds: dict  # task key -> seconds
+
+
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
             work_dir: str | Path | None = None) -> dict:
     """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
@@ -604,11 +626,11 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     except OSError:
         pass
     # depth_seconds: the depth tasks' own time (summed over workers); wall_seconds: the whole graph, filter included
-    report = {"views": len(stats), "skipped": skipped, "method": cfg.method, "depth_seconds": task_seconds,
-              "wall_seconds": t_all, "graph_seconds": t_graph, "workers": ex.workers, "sparse_points": int(len(model.points)),
-              "triangulated": triangulated, "triangulation_seconds": t_tri, "consistency": consistency,
-              "seconds_per_view": task_seconds / max(len(views), 1), "per_view": stats,
-              "reused_tasks": sum(1 for r in results.values() if r.get("reused")),
-              "task_seconds": {k: round(r["seconds"], 4) for k, r in results.items()}}
-    atomic_write_json(out / "mvs_report.json", report)
+    report = MVSResult(views=len(stats), skipped=skipped, method=cfg.method, depth_seconds=task_seconds,
+                       wall_seconds=t_all, graph_seconds=t_graph, workers=ex.workers,
+                       sparse_points=int(len(model.points)), triangulated=triangulated, triangulation_seconds=t_tri,
+                       consistency=consistency, seconds_per_view=task_seconds / max(len(views), 1), per_view=stats,
+                       reused_tasks=sum(1 for r in results.values() if r.get("reused")),
+                       task_seconds={k: round(r["seconds"], 4) for k, r in results.items()})
+    atomic_write_json(out / "mvs_report.json", report.to_dict())
     return report
