@@ -848,7 +848,7 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     largest component kept."""
     import open3d as o3d
 
-    from .mesh import fill_holes, from_open3d
+    from .mesh import fill_holes, from_open3d, to_open3d
 
     from scipy.spatial import cKDTree
 
@@ -880,8 +880,10 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
         c2.colors = o3d.utility.Vector3dVector(cols)
     mesh, _ = _poisson(c2, depth)
     out = _largest_component(from_open3d(mesh))
-    if not out.is_watertight:  # the second surface cut open where it met the octree's box: close the rims
-        out = fill_holes(out, diag)
+    if not out.is_watertight:  # rims where the surface met the octree's box, or an edge of more than two faces
+        m = to_open3d(out)
+        m.remove_non_manifold_edges()
+        out = fill_holes(from_open3d(m), diag)
     return out
 
 
