@@ -843,7 +843,7 @@ def _supported(mesh: trimesh.Trimesh, points: np.ndarray, distance: float) -> tr
 
 
 def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimesh.Trimesh:
-    """Close the trimmed surface: minimal patches over its holes, their sampled points added to the observed
+    """Close the trimmed surface: faired patches over its holes (``_fair_patch``), their sampled points added to the observed
     ones (normals from the patches, turned to agree with the surface around them), a second Poisson pass, the
     largest component kept."""
     import open3d as o3d
@@ -858,11 +858,10 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     patch_faces = filled.faces[len(open_mesh.faces):] if len(filled.faces) > len(open_mesh.faces) else np.zeros((0, 3), int)
     pts, nrm = np.asarray(cloud.points), np.asarray(cloud.normals)
     if len(patch_faces):
-        # the patches as filled (flat fans over each hole's rim): relaxing them into a minimal surface
-        # (Laplacian membrane) measured worse on the bunny ring (F@1% 0.935 vs 0.942) and left the second
-        # pass non-manifold at a few edges
+        # patches refined and faired (bi-Laplace, the surface around fixed): on the bunny ring (30 views 512x384)
+        # F@1% 0.948, against 0.942 with the flat patches and 0.935 with a Laplacian membrane (rim fixed only)
         patch_faces = _orient_patches(open_mesh.faces, patch_faces)
-        patch = trimesh.Trimesh(filled.vertices, patch_faces, process=False)
+        patch = _fair_patch(open_mesh, np.asarray(filled.vertices), patch_faces, cell)
         n_samples = int(min(2_000_000, max(1000, 2 * patch.area / cell ** 2)))
         sp, fi = trimesh.sample.sample_surface(patch, n_samples, seed=0)
         sn = np.asarray(patch.face_normals)[fi]
@@ -885,6 +884,44 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
         m.remove_non_manifold_edges()
         out = fill_holes(from_open3d(m), diag)
     return out
+
+
+def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: np.ndarray, cell: float) -> trimesh.Trimesh:
+    """The hole patches refined to edges of at most two cells and faired: their inner vertices solve the
+    bi-Laplace equation (uniform weights) over the patch *and* the surface around it, with the surface fixed,
+    so a patch continues the surface's slope across the rim instead of cutting straight across the hole
+    (Liepa, "Filling holes in meshes", SGP 2003)."""
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+
+    used = np.unique(patch_faces)
+    remap = np.full(len(vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    V, F = trimesh.remesh.subdivide_to_size(vertices[used], remap[patch_faces], max_edge=2 * cell, max_iter=20)
+    n_old, n_new = len(open_mesh.vertices), len(V) - len(used)
+    if n_new == 0:
+        return trimesh.Trimesh(V, F, process=False)
+    # one graph: the surface's vertices, then the patch's new ones (subdivision appends them after the old)
+    to_global = np.concatenate([used, n_old + np.arange(n_new)])
+    faces = np.vstack([np.asarray(open_mesh.faces), to_global[F]])
+    e = np.vstack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.vstack([e, e[:, ::-1]])
+    n = n_old + n_new
+    A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    A.data[:] = 1.0
+    L = (sparse.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    new = np.arange(n_old, n)
+    L2 = (L[new] @ L).tocsc()
+    X = np.vstack([np.asarray(open_mesh.vertices), V[len(used):]])
+    fixed = np.arange(n_old)
+    try:
+        X[new] = spsolve(L2[:, new].tocsc(), -(L2[:, fixed] @ X[fixed]))
+    except Exception as exc:  # a singular system (a patch touching nothing fixed): keep the flat patch
+        log.debug("poisson --watertight: patch fairing skipped (%s)", exc)
+        return trimesh.Trimesh(V, F, process=False)
+    if not np.isfinite(X[new]).all():
+        return trimesh.Trimesh(V, F, process=False)
+    return trimesh.Trimesh(X[to_global], F, process=False)
 
 
 def _orient_patches(faces: np.ndarray, patch_faces: np.ndarray) -> np.ndarray:
