@@ -516,7 +516,7 @@ def _run_texture(args):
     from .errors import OutputError
     from .texture import TextureConfig, check_config, texture_output
 
-    cfg = config_from_args(TextureConfig, args)
+    cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     check_config(cfg)
     dest = Path(args.out) if args.out else None
     if dest is not None and dest.resolve() in (Path(args.dataset).resolve(), *Path(args.dataset).resolve().parents):

@@ -179,7 +179,7 @@ def find_mesh(folder: Path) -> Path | None:
 def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str, Path]]:
     """A result to look at: ``path`` is a result folder (``reconstruct`` or ``fuse`` output: OUT/mesh.ply,
     .glb or .obj, cameras from OUT/sparse/0 or OUT/transforms.json when there, images in OUT/images) or a
-    mesh file. Returns (mesh, cameras, view name -> image file). Raises ``InputDataError`` (no mesh, a
+    mesh file (with the cameras of its folder when it has any; OUT/textured and a mesh in it: OUT's). Returns (mesh, cameras, view name -> image file). Raises ``InputDataError`` (no mesh, a
     mesh without faces, unreadable cameras)."""
     from .errors import InputDataError
     from .mesh import load_mesh
@@ -195,10 +195,13 @@ def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str
     else:
         raise InputDataError(f"{path}: no such result folder or mesh file")
     mesh = load_mesh(mesh_path)  # InputDataError for an unreadable file or a mesh without faces
-    cameras = result_cameras(path) if path.is_dir() else []
+    folder = path if path.is_dir() else path.parent
+    if Layout(folder.parent).textured == folder and not result_cameras(folder):
+        folder = folder.parent  # OUT/textured (or a mesh in it): the cameras and photos of OUT
+    cameras = result_cameras(folder)
     images = {}
     for v in cameras:
-        p = Layout(path).image(v.image_file or v.name)
+        p = Layout(folder).image(v.image_file or v.name)
         if p.is_file():
             images[v.name] = p
     return mesh, cameras, images

@@ -137,6 +137,11 @@ def test_reconstruct_texture_stage_resumes(blob_small, tmp_path):
     assert rep["texture"]["faces"] <= 4000 and rep["texture"]["unseen_faces"] <= 4
     m = trimesh.load(out / "textured" / "mesh.glb", process=False, force="mesh")
     assert m.visual.material.baseColorTexture.size == (512, 512)
+    from photorecon.report import load_result
+
+    shown, cams, images = load_result(out / "textured")  # photorecon view OUT/textured: texture + OUT's cameras
+    assert shown.visual.kind == "texture" and len(shown.faces) == len(m.faces)
+    assert len(cams) == len(images) == len(json.loads((blob_small / "transforms.json").read_text())["frames"])
     assert ran()[0] == []
     assert ran("--padding", "3")[0] == ["texture"]
     assert main(["-q", "texture", str(out), "-o", str(tmp_path / "alone"), "--atlas-size", "512",

@@ -6,7 +6,7 @@ poses) into a vertex-coloured mesh, decimated to ``--faces`` faces (Open3D carri
 decimated mesh is textured from the same photos. Both are rendered *unlit* (their colours are the photos' own)
 from held-out views that texturing never used (a ring at 35 degrees elevation between the rig's cameras) and
 compared with the true renders: PSNR over the object's pixels (the truth's mask). Scenes: blob, room and the
-Stanford bunny (``../shared/data/stanford-bunny/bun_zipper_res2.ply``, if present). A second row per scene
+Stanford bunny shipped in ``photorecon/data/bunny.ply``. A second row per scene
 uses the true surface (subdivided to at least ``--faces`` faces) with vertex colours averaged from the photos,
 to separate texture from geometry error. Target: textured >= vertex-coloured + 3 dB.
 
@@ -27,18 +27,16 @@ import numpy as np
 import trimesh
 
 from photorecon import progress
+from photorecon.demo import BUNNY  # the decimated Stanford bunny shipped in photorecon/data
 from photorecon.fusion import FusionConfig, fuse, load_frames
 from photorecon.io.dataset import Dataset
-from photorecon.mesh import CleanConfig, clean, simplify
+from photorecon.layout import Layout
+from photorecon.mesh import CleanConfig, clean, load_mesh, simplify
 from photorecon.resources import peak_bytes, reset_peak
 from photorecon.render import Renderer
 from photorecon.synthetic import SynthConfig, make_views, synthesize
 from photorecon.texture import TextureConfig, export_textured, texture_mesh
 
-_REPO = Path(__file__).resolve().parents[1]
-BUNNY = next((p for p in (_REPO / "../shared/data", _REPO / "../../shared/data", Path("/work/shared/data"))
-              if (p / "stanford-bunny/bun_zipper_res2.ply").is_file()), _REPO / "../shared/data") \
-    / "stanford-bunny/bun_zipper_res2.ply"
 
 
 def psnr(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
@@ -95,7 +93,7 @@ def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int) -> 
     root = tmp / name
     synthesize(cfg, root, overwrite=True)
     full, ds = fused_mesh(root)
-    gt = trimesh.load(root / "gt_mesh.ply", process=False)
+    gt = load_mesh(Layout(root).gt_mesh)
     truth_r = Renderer(gt, cfg.seed, cfg.background)
     held = held_out_views(cfg)
     truths = [truth_r.render(v) for v in held]
