@@ -187,25 +187,41 @@ def bench_memory(args, work: Path) -> dict:
 
     voxel = tsdf_voxel_size(frames, cfg0)[0] / 2  # one fixed voxel for every scale (fine: more blocks)
     rows = []
-    for s in (1.0, 2.0, 4.0):
-        ds = Dataset.open(_scaled_copy(src, work / f"mem_x{int(s)}", s))
-        cfg = FusionConfig(voxel_size=voxel, chunk_voxels=args.chunk_voxels or 64, memory_limit_gb=1e6)
-        fr = load_frames(ds, cfg)
-        stats = {}
-        mesh = tsdf_fuse_chunked(ds, fr, cfg, work_dir=work / f"mem_w{int(s)}")
-        tasks = mesh.metadata["chunk_tasks"].values()
-        single_blocks = None
-        if s <= 2.0:  # one volume, for contrast (x4 would need several GB)
-            with measure(stats, "single"):
-                m1 = tsdf_fuse(fr, cfg)
-            single_blocks = len(m1.faces)
-        rows.append({"scale": s, "volume_x": s ** 3, "chunks": mesh.metadata["chunks"], "faces": len(mesh.faces),
-                     "max_task_grid_mb": max(t["grid_mb"] for t in tasks),
-                     "max_task_peak_mb": max(t["peak_mb"] for t in tasks),
-                     "max_task_s": max(t["seconds"] for t in tasks),
-                     "single_volume_peak_mb": stats.get("single", {}).get("peak_mb"),
-                     "single_volume_faces": single_blocks})
+    # the chunk tasks on one worker process with one thread: its peak per task is the task's own (a worker holds
+    # no frames, no earlier meshes), which this process's peak, holding both, is not
+    from distributed import Client
+
+    from photorecon.distributed import local_cluster
+
+    cluster = local_cluster(1, cores=1)
+    ex = DaskExecutor(Client(cluster), retries=0)
+    ex._cluster = cluster
+    try:
+        for s in (float(x) for x in args.scales.split(",")):
+            rows.append(_memory_row(src, work, s, voxel, args, ex))
+    finally:
+        ex.close()
     return {"voxel": voxel, "chunk_voxels": args.chunk_voxels or 64, "rows": rows}
+
+
+def _memory_row(src: Path, work: Path, s: float, voxel: float, args, ex) -> dict:
+    ds = Dataset.open(_scaled_copy(src, work / f"mem_x{int(s)}", s))
+    cfg = FusionConfig(voxel_size=voxel, chunk_voxels=args.chunk_voxels or 64, memory_limit_gb=1e6)
+    fr = load_frames(ds, cfg)
+    stats = {}
+    mesh = tsdf_fuse_chunked(ds, fr, cfg, executor=ex, work_dir=work / f"mem_w{int(s)}")
+    tasks = mesh.metadata["chunk_tasks"].values()
+    single_blocks = None
+    if s <= 2.0:  # one volume, for contrast (x4 would need several GB)
+        with measure(stats, "single"):
+            m1 = tsdf_fuse(fr, cfg)
+        single_blocks = len(m1.faces)
+    return {"scale": s, "volume_x": s ** 3, "chunks": mesh.metadata["chunks"], "faces": len(mesh.faces),
+            "max_task_grid_mb": max(t["grid_mb"] for t in tasks),
+            "max_task_peak_mb": max(t["peak_mb"] for t in tasks),
+            "max_task_s": max(t["seconds"] for t in tasks),
+            "single_volume_peak_mb": stats.get("single", {}).get("peak_mb"),
+            "single_volume_faces": single_blocks}
 
 
 def main():
@@ -215,6 +231,7 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--chunk-voxels", type=int, default=0, help="fusion chunk size (default: the library's, 256; memory: 64)")
     ap.add_argument("--only", choices=["depth", "memory"])
+    ap.add_argument("--scales", default="1,2,4", help="memory: world scales (x2 = 8x the volume)")
     ap.add_argument("--json")
     args = ap.parse_args()
     progress.set_enabled(False)
@@ -241,7 +258,7 @@ def main():
         if args.only in (None, "memory"):
             m = res["memory"] = bench_memory(args, work)
             print(f"\nchunked TSDF, voxel {m['voxel']:.4g}, chunks of {m['chunk_voxels']} voxels")
-            print("| scene volume | chunks | faces | max grid MB per task | max peak MB per task | max task s | one volume peak MB |")
+            print("| scene volume | chunks | faces | max grid MB per task | max worker peak MB per task | max task s | one volume peak MB |")
             print("|---|---|---|---|---|---|---|")
             for r in m["rows"]:
                 print(f"| {r['volume_x']:.0f}x | {r['chunks']} | {r['faces']:,} | {r['max_task_grid_mb']:.1f} | "
