@@ -12,12 +12,13 @@ scene grows.
    fusion: one task per chunk) list-scheduled on W workers along the graph's dependencies, plus the measured
    serial parts (planning, stitching, cleaning, export) and a per-task scheduling overhead measured on the
    cluster run. Same-sized tasks are assumed to cost what they cost here (no shared-file-system slowdown).
-3. **Chunked fusion memory** (``--only memory``): the same depth maps with the world scaled by 1x, 2x and 4x
-   (8x and 64x the scene's volume) fused at one fixed voxel size in chunks of ``--chunk-voxels``: the largest
-   grid and process peak of any chunk task, against one volume's grid.
+3. **Chunked fusion memory** (``--only memory``): 40 views' rendered depth with the world scaled by ``--scales``
+   (1,2,4: 8x and 64x the scene's volume) fused at one fixed voxel size in chunks of ``--chunk-voxels`` (64),
+   the chunk tasks on one single-threaded worker process: the largest grid and worker peak of any chunk task,
+   against the peak of one volume (in this process; up to x2).
 
     python tools/bench_distributed.py [--views 120] [--size 320x240] [--workers 2] [--json out.json]
-    python tools/bench_distributed.py --only memory
+    python tools/bench_distributed.py --only memory [--scales 1,2]
 """
 from __future__ import annotations
 
