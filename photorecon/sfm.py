@@ -4,8 +4,8 @@ between versions; pycolmap 4.x: ``image.cam_from_world()`` is a method).
 Stages, each a function that writes one output and returns its path (hloc's style), run by the stage runner
 (``photorecon.stages``) so that a re-run reuses a stage while its inputs and settings are unchanged:
 ingest (oriented copies of the images, ``OUT/colmap/images``) -> ``extract`` (SIFT, ``OUT/colmap/features.db``)
--> ``match`` (exhaustive / sequential, chosen by count; ``OUT/colmap/database.db``) -> ``map`` (incremental or
-global; the largest model, ``OUT/colmap/sparse``) -> ``undistort`` to pinhole images. Outputs in the synth
+-> ``match`` (exhaustive / sequential / spatial by EXIF GPS, chosen by count and GPS; ``OUT/colmap/database.db``)
+-> ``map`` (incremental, or global (GLOMAP) for large sets; the largest model, ``OUT/colmap/sparse``) -> ``undistort`` to pinhole images. Outputs in the synth
 layout: ``OUT/images/`` (undistorted), ``OUT/sparse/0/`` (COLMAP text, pinhole) and ``OUT/transforms.json``.
 Masks (a user's folder, else the images' alpha) go to extraction as ``OUT/colmap/masks/NAME.EXT.png`` (COLMAP's
 naming) and, undistorted, to ``OUT/masks/NAME.png``.
@@ -40,6 +40,11 @@ def _pycolmap():
     return pycolmap
 
 
+# --mapper auto maps globally from this many images: on 200 synthetic views GLOMAP was more accurate than
+# incremental mapping with every matching (0.057-0.076 deg vs 0.078-0.102) at 0.9-1.7x its time (bench_sfm.py --large)
+GLOBAL_MIN = 200
+
+
 @dataclass
 class SfMConfig:
     """Settings of the structure-from-motion stage (``photorecon sfm``)."""
@@ -56,10 +61,15 @@ class SfMConfig:
     max_features: int = field(default=8192, metadata={"help": "SIFT features per image"})
     affine_sift: bool = field(default=True, metadata={"help": "estimate affine feature shapes (longer tracks across oblique views; measured: mean rotation error 0.045 -> 0.032 deg on the 40-view blob)"})
     dsp_sift: bool = field(default=False, metadata={"help": "domain-size pooling SIFT descriptors (slower extraction, sometimes more accurate)"})
-    matcher: Literal["auto", "exhaustive", "sequential"] = field(default="auto", metadata={"help": "auto: exhaustive up to --exhaustive-max images, else sequential"})
-    exhaustive_max: int = field(default=80, metadata={"help": "largest image count matched exhaustively by --matcher auto"})
-    sequential_overlap: int = field(default=10, metadata={"help": "sequential matcher: neighbours per image"})
-    mapper: Literal["incremental", "global"] = field(default="incremental", metadata={"help": "COLMAP incremental or global (GLOMAP) mapping"})
+    matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "which image pairs are matched: exhaustive = every pair (quadratic); sequential = each image with its --sequential-overlap neighbours in file-name order (videos, walkarounds), plus loop closure; spatial = each image with its --spatial-neighbors nearest by EXIF GPS; auto = exhaustive up to --exhaustive-max images, above it spatial when every photo carries EXIF GPS, else sequential"})
+    exhaustive_max: int = field(default=80, metadata={"help": "largest image count matched exhaustively by --matching auto"})
+    sequential_overlap: int = field(default=10, metadata={"help": "sequential matching: neighbours per image (in file-name order)"})
+    sequential_loops: bool = field(default=True, metadata={"help": "sequential matching: also match every k-th image (k = --sequential-overlap) with every other k-th one, which closes loops (a walk back to its start) without a vocabulary tree; n^2 / (2 k^2) more pairs"})
+    spatial_neighbors: int = field(default=20, metadata={"help": "spatial matching: nearest photos by EXIF GPS per photo"})
+    spatial_max_distance: float = field(default=100.0, metadata={"help": "spatial matching: no pair farther apart than this, metres"})
+    spatial_ignore_z: bool = field(default=True, metadata={"help": "spatial matching: ignore GPS altitude (consumer GPS altitude is poor)"})
+    mapper: Literal["auto", "incremental", "global"] = field(default="auto", metadata={"help": "COLMAP incremental or global (GLOMAP) mapping; auto = global from --global-min images on"})
+    global_min: int = field(default=GLOBAL_MIN, metadata={"help": "smallest image count mapped globally by --mapper auto"})
     min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of images register"})
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)"})
     seed: int = field(default=0, metadata={"help": "random seed for mapping"})
@@ -180,41 +190,110 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
     return database
 
 
-def choose_matcher(cfg: SfMConfig, num_images: int) -> str:
-    if cfg.matcher != "auto":
-        return cfg.matcher
-    return "exhaustive" if num_images <= cfg.exhaustive_max else "sequential"
+def gps_priors(database: Path) -> int:
+    """How many images of a COLMAP database carry a position prior (COLMAP reads EXIF GPS at extraction)."""
+    import math
+
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(database))
+    try:
+        return sum(1 for p in db.read_all_pose_priors()
+                   if p.has_position() and all(math.isfinite(x) for x in p.position))
+    finally:
+        db.close()
 
 
-def match(features: Path, database: Path, matcher: str, cfg: SfMConfig) -> Path:
-    """Match the features of the ``features`` database (``matcher``: exhaustive or sequential) into a copy of
-    it, ``database``."""
+def choose_matching(cfg: SfMConfig, num_images: int, with_gps: int = 0) -> str:
+    """``cfg.matching``, or for ``auto``: exhaustive up to ``cfg.exhaustive_max`` images, above it spatial when
+    every image has a GPS prior (``with_gps`` of them), else sequential. Raises ``BadArgumentError`` for
+    ``spatial`` with fewer than 2 geotagged images."""
+    if cfg.matching == "spatial" and with_gps < 2:
+        raise BadArgumentError(f"--matching spatial: {with_gps} of {num_images} photos carry EXIF GPS; "
+                               "use --matching sequential (ordered captures) or exhaustive")
+    if cfg.matching != "auto":
+        return cfg.matching
+    if num_images <= cfg.exhaustive_max:
+        return "exhaustive"
+    return "spatial" if with_gps >= num_images else "sequential"
+
+
+def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
+    if cfg.mapper != "auto":
+        return cfg.mapper
+    return "global" if num_images >= cfg.global_min else "incremental"
+
+
+def match(features: Path, database: Path, matching: str, cfg: SfMConfig) -> Path:
+    """Match the features of the ``features`` database into a copy of it, ``database``; ``matching``:
+    exhaustive, sequential (file-name order; loops closed by matching keyframes, ``_match_keyframes``, since
+    COLMAP's loop detection needs a vocabulary tree, a download) or spatial (nearest by the GPS position priors
+    COLMAP read from EXIF)."""
     pycolmap = _pycolmap()
     with atomic_path(database) as tmp:
         shutil.copyfile(features, tmp)
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.threads
-        if matcher == "exhaustive":
+        if matching == "exhaustive":
             pycolmap.match_exhaustive(str(tmp), matching_options=mopt, device=pycolmap.Device.cpu)
-        else:
+        elif matching == "spatial":
+            popt = pycolmap.SpatialPairingOptions()
+            popt.max_num_neighbors = cfg.spatial_neighbors
+            popt.max_distance = cfg.spatial_max_distance
+            popt.ignore_z = cfg.spatial_ignore_z
+            pycolmap.match_spatial(str(tmp), matching_options=mopt, pairing_options=popt, device=pycolmap.Device.cpu)
+        elif matching == "sequential":
             popt = pycolmap.SequentialPairingOptions()
             popt.overlap = cfg.sequential_overlap
             popt.quadratic_overlap = True
             pycolmap.match_sequential(str(tmp), matching_options=mopt, pairing_options=popt,
                                       device=pycolmap.Device.cpu)
+            if cfg.sequential_loops:
+                _match_keyframes(tmp, max(1, cfg.sequential_overlap), mopt)
+        else:
+            raise BadArgumentError(f"--matching: unknown choice {matching!r}")
     return database
 
 
+def _match_keyframes(database: Path, every: int, mopt) -> int:
+    """Loop closure for sequential matching: every ``every``-th image in name order (sequential's order) matched
+    with every other one not already matched with it. Returns the number of pairs added."""
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(database))
+    try:
+        names = sorted(im.name for im in db.read_all_images())
+        key = names[::every]
+        pairs = [(a, b) for i, a in enumerate(key) for b in key[i + 1:]]
+    finally:
+        db.close()
+    if not pairs:
+        return 0
+    with tempfile.NamedTemporaryFile("w", suffix=".txt", dir=database.parent, delete=False) as f:
+        f.write("".join(f"{a} {b}\n" for a, b in pairs))
+    try:
+        popt = pycolmap.ImportedPairingOptions()
+        popt.match_list_path = f.name
+        pycolmap.match_image_pairs(str(database), matching_options=mopt, pairing_options=popt,
+                                   device=pycolmap.Device.cpu)
+    finally:
+        Path(f.name).unlink(missing_ok=True)
+    return len(pairs)
+
+
 # named after the step, as hloc does; this module does not use the builtin map
-def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool) -> Path:  # noqa: A001
-    """Incremental (or global) mapping; writes the largest model, COLMAP binary, to ``model_dir``."""
+def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool,  # noqa: A001
+        mapper: str = "incremental") -> Path:
+    """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``."""
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(cfg.seed)
     with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp:
-        if cfg.mapper == "global":
+        if mapper == "global":
             gopt = pycolmap.GlobalPipelineOptions()
             gopt.random_seed = cfg.seed
             gopt.num_threads = cfg.threads
+            if fixed_intrinsics:
+                gopt.mapper.bundle_adjustment.refine_focal_length = False
+                gopt.mapper.bundle_adjustment.refine_principal_point = False
+                gopt.mapper.bundle_adjustment.refine_extra_params = False
             recs = pycolmap.global_mapping(str(database), str(images_dir), runs, gopt)
         else:
             opt = pycolmap.IncrementalPipelineOptions()
@@ -352,16 +431,23 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     ext = stages.run("extraction", {"cameras": cameras, "sift": sift, "masks": masks and fingerprint(masks)},
                      extraction, outputs=[features, work_masks])
 
-    matcher = choose_matcher(cfg, len(names))
+    with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
+    matching = choose_matching(cfg, len(names), with_gps)
+    if matching == "spatial" and with_gps < len(names):
+        log.warning("--matching spatial: %d of %d photos carry no EXIF GPS and get no pairs",
+                    len(names) - with_gps, len(names))
     database = work / "database.db"
-    overlap = cfg.sequential_overlap if matcher == "sequential" else None
-    stages.run("matching", {"matcher": matcher, "overlap": overlap},
-               lambda: match(features, database, matcher, cfg), outputs=[database])
+    pairing = {"sequential": {"overlap": cfg.sequential_overlap, "loops": cfg.sequential_loops},
+               "spatial": {"neighbors": cfg.spatial_neighbors, "max_distance": cfg.spatial_max_distance,
+                           "ignore_z": cfg.spatial_ignore_z}}.get(matching)
+    stages.run("matching", {"matching": matching, "pairing": pairing},
+               lambda: match(features, database, matching, cfg), outputs=[database])
 
     fixed = _given_intrinsics(cfg, images[0].width, images[0].height) is not None and not cfg.refine_intrinsics
     model_dir = work / "sparse"
-    stages.run("mapping", {"mapper": cfg.mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
-               lambda: map(database, work / "images", model_dir, cfg, fixed), outputs=[model_dir])
+    mapper = choose_mapper(cfg, len(names))
+    stages.run("mapping", {"mapper": mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
+               lambda: map(database, work / "images", model_dir, cfg, fixed, mapper), outputs=[model_dir])
     rec = pycolmap.Reconstruction(str(model_dir))
     reg_names = sorted(rec.images[i].name for i in rec.reg_image_ids())
     unreg = [n for n in names if n not in set(reg_names)]
@@ -379,7 +465,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     model = publish(undistorted, out)
     secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,
-                                                 "skipped_files": ing["skipped"], "matcher": matcher,
+                                                 "skipped_files": ing["skipped"], "matching": matching,
+                                                 "mapper": mapper, "photos_with_gps": with_gps,
                                                  "cameras": cameras, "seconds": secs, "cached": stages.cached})
     return SfMResult(model, reg_names, unreg, secs, stages.cached)
 

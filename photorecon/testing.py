@@ -1,6 +1,6 @@
-"""Small ONNX models built on the spot with the ``onnx`` package (``pip install photorecon[test]``): an exact
-"oracle" depth model, deliberately broken models, and a random-weight network of MiDaS-small-like compute.
-Used by the test suite and the monocular-depth benchmark; no weights are downloaded."""
+"""Test inputs made on the spot, shared by the test suite and the benchmarks: small ONNX models built with the
+``onnx`` package (``pip install photorecon[test]``: an exact "oracle" depth model, deliberately broken models,
+a random-weight network of MiDaS-small-like compute; no weights are downloaded), and geotagged JPEGs."""
 from __future__ import annotations
 
 import numpy as np
@@ -101,3 +101,29 @@ def conv_net(path, size=256, widths=(32, 64, 128, 256), seed=0, dynamic=False):
     graph = helper.make_graph(nodes, "convnet", [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, *hw])],
                               [helper.make_tensor_value_info("depth", TensorProto.FLOAT, [1, *hw])], inits)
     return _save(graph, path)
+
+
+def write_gps_jpeg(path, lla, image=None, quality: int = 95):
+    """A JPEG at ``path`` with EXIF GPS tags for ``lla`` = (latitude, longitude in degrees, altitude in metres),
+    as a phone writes them (degrees / minutes / seconds rationals, N/S, E/W, above / below sea level); its
+    pixels are ``image`` (an RGB uint8 array) or a flat grey 32x24."""
+    from PIL import Image, TiffImagePlugin
+
+    def rational(x: float, den: int = 10**6):
+        return TiffImagePlugin.IFDRational(int(round(x * den)), den)
+
+    def dms(a):
+        a = abs(a)
+        d = int(a)
+        m = int((a - d) * 60)
+        return (rational(d, 1), rational(m, 1), rational((a - d - m / 60) * 3600))
+
+    lat, lon, alt = lla
+    exif = Image.Exif()
+    gps = exif.get_ifd(0x8825)
+    gps[1], gps[2] = ("N" if lat >= 0 else "S"), dms(lat)
+    gps[3], gps[4] = ("E" if lon >= 0 else "W"), dms(lon)
+    gps[5], gps[6] = (0 if alt >= 0 else 1), rational(abs(alt), 1000)
+    im = Image.new("RGB", (32, 24), (90, 90, 90)) if image is None else Image.fromarray(np.asarray(image, np.uint8))
+    im.save(path, "JPEG", exif=exif, quality=quality)
+    return path

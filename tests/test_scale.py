@@ -7,13 +7,14 @@ import logging
 import cv2
 import numpy as np
 import pytest
-from PIL import Image, TiffImagePlugin
+from PIL import Image
 
 from photorecon.cameras import Intrinsics, View, look_at, project
 from photorecon.errors import BadArgumentError
 from photorecon.io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
 from photorecon.io.images import write_image
 from photorecon.io.nerf import write_transforms
+from photorecon.testing import write_gps_jpeg
 from photorecon.scale import (ScaleConfig, apply_similarity, enu_from_geodetic, geodetic_from_enu, given_units,
                               gps_alignment, marker_scale, read_gps, scale_output)
 
@@ -171,27 +172,6 @@ def test_scale_output_rewrites_model_and_transforms_in_metres(tmp_path):
     assert abs(info2["marker"]["scale"] - 1) <= 0.005
 
 
-def _rational(x: float, den: int = 10**6):
-    return TiffImagePlugin.IFDRational(int(round(x * den)), den)
-
-
-def _write_gps_jpeg(path, lla):
-    lat, lon, alt = lla
-    exif = Image.Exif()
-    gps = exif.get_ifd(0x8825)
-
-    def dms(a):
-        a = abs(a)
-        d = int(a)
-        m = int((a - d) * 60)
-        return (_rational(d, 1), _rational(m, 1), _rational((a - d - m / 60) * 3600))
-
-    gps[1], gps[2] = ("N" if lat >= 0 else "S"), dms(lat)
-    gps[3], gps[4] = ("E" if lon >= 0 else "W"), dms(lon)
-    gps[5], gps[6] = (0 if alt >= 0 else 1), _rational(abs(alt), 1000)
-    Image.new("RGB", (32, 24), (90, 90, 90)).save(path, "JPEG", exif=exif)
-
-
 def test_enu_round_trip():
     origin = (-33.8568, 151.2153, 40.0)  # southern and eastern hemispheres
     enu = np.array([[0, 0, 0], [100.0, -50, 3], [-2000, 1500, -20]])
@@ -220,7 +200,7 @@ def test_gps_alignment_recovers_enu_positions(tmp_path):
         T = look_at(c, centres.mean(0) + [0.0, 0.0, 0.01], up=Rm @ [0, 0, 1.0])
         views.append(View(f"p{i}", intr, T))
         paths.append(tmp_path / f"p{i}.jpg")
-        _write_gps_jpeg(paths[-1], lla[i])
+        write_gps_jpeg(paths[-1], lla[i])
     assert np.allclose(read_gps(paths[1]), lla[1], rtol=0, atol=1e-3)  # altitude stored to the mm
     model = SparseModel(views)
     sim = gps_alignment(model, paths)
@@ -254,7 +234,7 @@ def test_gps_in_fewer_than_three_photos_warns(tmp_path, caplog):
     for i in range(3):
         paths.append(tmp_path / f"p{i}.jpg")
         if i < 2:
-            _write_gps_jpeg(paths[-1], lla[i])
+            write_gps_jpeg(paths[-1], lla[i])
         else:
             Image.new("RGB", (32, 24)).save(paths[-1], "JPEG")
         views.append(View(f"p{i}", intr, look_at([i, i * i, 1.0], [0, 5.0, -5.0])))
@@ -270,7 +250,7 @@ def test_gps_in_fewer_than_three_photos_warns(tmp_path, caplog):
     # collinear GPS positions: also refused
     lla = geodetic_from_enu([[0, 0, 0], [10.0, 0, 0], [20.0, 0.01, 0]], origin)
     for i in range(3):
-        _write_gps_jpeg(paths[i], lla[i])
+        write_gps_jpeg(paths[i], lla[i])
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="photorecon"):
         assert gps_alignment(model, paths) is None

@@ -300,14 +300,14 @@ def test_sfm_caches_are_keyed_on_their_settings(ring_tiny, tmp_path, capsys):
     assert models == {"PINHOLE"} and params[0] != pytest.approx(300)
     assert (out / "sparse" / "0" / "cameras.txt").read_text() != cams
 
-    # another matcher: the features are reused, the matches are new
-    assert sfm("--camera-model", "PINHOLE", "--matcher", "sequential", "--sequential-overlap", "3") == \
+    # another matching: the features are reused, the matches are new
+    assert sfm("--camera-model", "PINHOLE", "--matching", "sequential", "--sequential-overlap", "3") == \
         ["ingest", "extraction"]
     _, _, seq_pairs = _database(out)
     assert seq_pairs < pairs
-    assert json.loads((out / "colmap" / "sfm_report.json").read_text())["matcher"] == "sequential"
+    assert json.loads((out / "colmap" / "sfm_report.json").read_text())["matching"] == "sequential"
     marker = json.loads((out / "colmap" / ".stages" / "matching.json").read_text())
-    assert marker["params"] == {"matcher": "sequential", "overlap": 3} and marker["seconds"] > 0
+    assert marker["params"] == {"matching": "sequential", "pairing": {"overlap": 3, "loops": True}} and marker["seconds"] > 0
 
 
 @pytest.mark.slow
@@ -338,3 +338,53 @@ def test_reconstruct_reruns_sfm_with_new_intrinsics(ring_tiny, tmp_path):
         assert (v.intrinsics.fx, v.intrinsics.fy, v.intrinsics.cx, v.intrinsics.cy) == pytest.approx(
             (300, 300, 119.5, 89.5))
     assert before.fx != pytest.approx(300, abs=1)
+
+
+def test_choice_of_matching_and_mapper_by_count_and_gps():
+    from photorecon.errors import BadArgumentError
+    from photorecon.sfm import choose_mapper, choose_matching
+
+    cfg = SfMConfig(exhaustive_max=80, global_min=500)
+    assert choose_matching(cfg, 80, 0) == "exhaustive" and choose_matching(cfg, 80, 80) == "exhaustive"
+    assert choose_matching(cfg, 81, 81) == "spatial"  # every photo geotagged
+    assert choose_matching(cfg, 81, 80) == "sequential"  # one without GPS: it would get no pairs
+    assert choose_matching(SfMConfig(matching="exhaustive"), 5000, 5000) == "exhaustive"
+    with pytest.raises(BadArgumentError, match="1 of 90 photos carry EXIF GPS"):
+        choose_matching(SfMConfig(matching="spatial"), 90, 1)
+    assert choose_mapper(cfg, 499) == "incremental" and choose_mapper(cfg, 500) == "global"
+    assert choose_mapper(SfMConfig(mapper="incremental"), 10_000) == "incremental"
+
+
+@pytest.mark.slow
+def test_sequential_and_spatial_matching_register_every_view_like_exhaustive(ring_tiny, tmp_path):
+    """Issue 14: an ordered capture (a ring, file names in capture order, as JPEGs with EXIF GPS) matched
+    sequentially (3 neighbours by name) or spatially (4 nearest by GPS) registers every view as accurately as
+    exhaustive matching, from far fewer pairs; auto above --exhaustive-max picks spatial for geotagged photos."""
+    from photorecon.io.images import read_image
+    from photorecon.scale import geodetic_from_enu
+    from photorecon.testing import write_gps_jpeg
+
+    ref = read_model(ring_tiny / "sparse" / "0").views
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rng = np.random.default_rng(0)
+    for v in ref:  # 10 m per scene unit (a 30 m ring), 1 m of GPS noise
+        lla = geodetic_from_enu(v.center * 10 + rng.normal(size=3), (46.52, 6.63, 400.0))[0]
+        write_gps_jpeg(photos / f"{v.name}.jpg", lla, read_image(ring_tiny / "images" / v.image_file))
+    out = tmp_path / "out"  # one folder: the features are extracted once, each choice re-matches
+    found = {}
+    for matching in ("exhaustive", "sequential", "spatial"):
+        res = run_sfm(photos, out, SfMConfig(matching=matching, sequential_overlap=3, spatial_neighbors=4))
+        assert len(res.registered) == 16, (matching, res.unregistered)
+        found[matching] = (pose_metrics(read_model(out / "sparse" / "0").views, ref), _database(out)[2])
+    ex, ex_pairs = found["exhaustive"]
+    assert ex_pairs == 16 * 15 // 2
+    for matching in ("sequential", "spatial"):
+        m, pairs = found[matching]
+        assert m["registered"] == 16 and pairs <= 16 * 6, (matching, pairs)
+        assert m["rot_mean_deg"] <= 1.5 * ex["rot_mean_deg"] + 0.05, (matching, m["rot_mean_deg"], ex["rot_mean_deg"])
+        assert m["center_mean_rel"] <= 1.5 * ex["center_mean_rel"] + 0.001, (matching, m, ex)
+    # auto, above --exhaustive-max: every photo geotagged -> spatial (the same pairs: the matches are reused)
+    res = run_sfm(photos, out, SfMConfig(exhaustive_max=8, spatial_neighbors=4))
+    report = json.loads((out / "colmap" / "sfm_report.json").read_text())
+    assert report["matching"] == "spatial" and report["photos_with_gps"] == 16 and "matching" in res.cached

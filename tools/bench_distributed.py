@@ -12,12 +12,13 @@ scene grows.
    fusion: one task per chunk) list-scheduled on W workers along the graph's dependencies, plus the measured
    serial parts (planning, stitching, cleaning, export) and a per-task scheduling overhead measured on the
    cluster run. Same-sized tasks are assumed to cost what they cost here (no shared-file-system slowdown).
-3. **Chunked fusion memory** (``--only memory``): the same depth maps with the world scaled by 1x, 2x and 4x
-   (8x and 64x the scene's volume) fused at one fixed voxel size in chunks of ``--chunk-voxels``: the largest
-   grid and process peak of any chunk task, against one volume's grid.
+3. **Chunked fusion memory** (``--only memory``): 40 views' rendered depth with the world scaled by ``--scales``
+   (1,2,4: 8x and 64x the scene's volume) fused at one fixed voxel size in chunks of ``--chunk-voxels`` (64),
+   the chunk tasks on one single-threaded worker process: the largest grid and worker peak of any chunk task,
+   against the peak of one volume (in this process; up to x2).
 
     python tools/bench_distributed.py [--views 120] [--size 320x240] [--workers 2] [--json out.json]
-    python tools/bench_distributed.py --only memory
+    python tools/bench_distributed.py --only memory [--scales 1,2]
 """
 from __future__ import annotations
 
@@ -100,8 +101,11 @@ def bench_depth(args, work: Path) -> dict:
     mvs_cfg = MVSConfig(**MVS_PRESETS["fast"])
     fcfg = FusionConfig(trunc_voxels=3.0, chunk_voxels=args.chunk_voxels if args.chunk_voxels else None)
     out = {"views": args.views, "size": args.size, "workers": args.workers, "cores": os.cpu_count()}
-    # warm-up (numba's on-disk cache, imports) on 3 views, so neither side pays the first compile
-    run_mvs(Dataset.open(data), work / "warm", replace(mvs_cfg, n_sources=2))
+    # warm-up (imports, numba's on-disk cache) on a separate 6-view set, in this process and later on every
+    # worker, so that neither side pays a first compile or import inside the timing
+    warm = work / "warm_data"
+    synthesize(SynthConfig(scene="blob", views=6, width=w, height=h, points=500, seed=2), warm, overwrite=True)
+    run_mvs(Dataset.open(warm), work / "warm_a", mvs_cfg)
     t0 = time.perf_counter()
     rep_a = run_mvs(ds, work / "a", mvs_cfg)
     t_depth_a = time.perf_counter() - t0
@@ -110,8 +114,9 @@ def bench_depth(args, work: Path) -> dict:
     ex = Recording(make_executor(ClusterConfig(f"local:{args.workers}")))
     t_start = time.perf_counter() - t0
     try:
-        ex.run(_noop, [__import__("photorecon.tasks", fromlist=["Task"]).Task(str(i)) for i in range(2 * args.workers)],
-               None, desc="warm-up")  # workers import photorecon and numba's cache once, before the timing
+        for _ in range(args.workers):  # each worker: PatchMatch, the filter and a fusion chunk once
+            run_mvs(Dataset.open(warm), work / "warm_b", mvs_cfg, ex)
+        _fusion(Dataset.open(warm, work / "warm_b"), ex, fcfg)
         ex.graphs.clear()
         t0 = time.perf_counter()
         rep_b = run_mvs(ds, work / "b", mvs_cfg, ex)
@@ -155,15 +160,6 @@ def bench_depth(args, work: Path) -> dict:
     return out
 
 
-def _noop(shared):
-    import numba  # noqa: F401  (and photorecon's modules, through the pickled task)
-
-    from photorecon import fusion  # noqa: F401
-    from photorecon.depth import _pm_kernels  # noqa: F401
-    time.sleep(0.2)
-    return {"seconds": 0.0}
-
-
 def _scaled_copy(src: Path, dst: Path, s: float) -> Path:
     """The dataset with the world scaled by ``s``: same images, depth x s, camera centres and points x s."""
     shutil.copytree(src / "images", dst / "images")
@@ -192,25 +188,41 @@ def bench_memory(args, work: Path) -> dict:
 
     voxel = tsdf_voxel_size(frames, cfg0)[0] / 2  # one fixed voxel for every scale (fine: more blocks)
     rows = []
-    for s in (1.0, 2.0, 4.0):
-        ds = Dataset.open(_scaled_copy(src, work / f"mem_x{int(s)}", s))
-        cfg = FusionConfig(voxel_size=voxel, chunk_voxels=args.chunk_voxels or 64, memory_limit_gb=1e6)
-        fr = load_frames(ds, cfg)
-        stats = {}
-        mesh = tsdf_fuse_chunked(ds, fr, cfg, work_dir=work / f"mem_w{int(s)}")
-        tasks = mesh.metadata["chunk_tasks"].values()
-        single_blocks = None
-        if s <= 2.0:  # one volume, for contrast (x4 would need several GB)
-            with measure(stats, "single"):
-                m1 = tsdf_fuse(fr, cfg)
-            single_blocks = len(m1.faces)
-        rows.append({"scale": s, "volume_x": s ** 3, "chunks": mesh.metadata["chunks"], "faces": len(mesh.faces),
-                     "max_task_grid_mb": max(t["grid_mb"] for t in tasks),
-                     "max_task_peak_mb": max(t["peak_mb"] for t in tasks),
-                     "max_task_s": max(t["seconds"] for t in tasks),
-                     "single_volume_peak_mb": stats.get("single", {}).get("peak_mb"),
-                     "single_volume_faces": single_blocks})
+    # the chunk tasks on one worker process with one thread: its peak per task is the task's own (a worker holds
+    # no frames, no earlier meshes), which this process's peak, holding both, is not
+    from distributed import Client
+
+    from photorecon.distributed import local_cluster
+
+    cluster = local_cluster(1, cores=1)
+    ex = DaskExecutor(Client(cluster), retries=0)
+    ex._cluster = cluster
+    try:
+        for s in (float(x) for x in args.scales.split(",")):
+            rows.append(_memory_row(src, work, s, voxel, args, ex))
+    finally:
+        ex.close()
     return {"voxel": voxel, "chunk_voxels": args.chunk_voxels or 64, "rows": rows}
+
+
+def _memory_row(src: Path, work: Path, s: float, voxel: float, args, ex) -> dict:
+    ds = Dataset.open(_scaled_copy(src, work / f"mem_x{int(s)}", s))
+    cfg = FusionConfig(voxel_size=voxel, chunk_voxels=args.chunk_voxels or 64, memory_limit_gb=1e6)
+    fr = load_frames(ds, cfg)
+    stats = {}
+    mesh = tsdf_fuse_chunked(ds, fr, cfg, executor=ex, work_dir=work / f"mem_w{int(s)}")
+    tasks = mesh.metadata["chunk_tasks"].values()
+    single_blocks = None
+    if s <= 2.0:  # one volume, for contrast (x4 would need several GB)
+        with measure(stats, "single"):
+            m1 = tsdf_fuse(fr, cfg)
+        single_blocks = len(m1.faces)
+    return {"scale": s, "volume_x": s ** 3, "chunks": mesh.metadata["chunks"], "faces": len(mesh.faces),
+            "max_task_grid_mb": max(t["grid_mb"] for t in tasks),
+            "max_task_peak_mb": max(t["peak_mb"] for t in tasks),
+            "max_task_s": max(t["seconds"] for t in tasks),
+            "single_volume_peak_mb": stats.get("single", {}).get("peak_mb"),
+            "single_volume_faces": single_blocks}
 
 
 def main():
@@ -220,6 +232,7 @@ def main():
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--chunk-voxels", type=int, default=0, help="fusion chunk size (default: the library's, 256; memory: 64)")
     ap.add_argument("--only", choices=["depth", "memory"])
+    ap.add_argument("--scales", default="1,2,4", help="memory: world scales (x2 = 8x the volume)")
     ap.add_argument("--json")
     args = ap.parse_args()
     progress.set_enabled(False)
@@ -246,7 +259,7 @@ def main():
         if args.only in (None, "memory"):
             m = res["memory"] = bench_memory(args, work)
             print(f"\nchunked TSDF, voxel {m['voxel']:.4g}, chunks of {m['chunk_voxels']} voxels")
-            print("| scene volume | chunks | faces | max grid MB per task | max peak MB per task | max task s | one volume peak MB |")
+            print("| scene volume | chunks | faces | max grid MB per task | max worker peak MB per task | max task s | one volume peak MB |")
             print("|---|---|---|---|---|---|---|")
             for r in m["rows"]:
                 print(f"| {r['volume_x']:.0f}x | {r['chunks']} | {r['faces']:,} | {r['max_task_grid_mb']:.1f} | "
