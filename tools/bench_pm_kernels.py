@@ -1,4 +1,12 @@
-"""Side-by-side CPU seconds of full-resolution pm_pass variants (kernel files given on the command line)."""
+#!/usr/bin/env python
+"""Side by side, CPU seconds of one PatchMatch iteration (red + black pm_pass) of kernel variants on the same
+inputs: a 9-view blob ring (synthesized once into $TMPDIR/pm_bench_scene), reference view 0 with 4 sources,
+the true depth +1% noise as hypotheses, the sources' true depth for the geometric term; with/without the
+geometric term and refinement, and the fraction of pixels within 1% after the pass.
+
+    cp photorecon/depth/_pm_kernels.py /tmp/k/k0.py; (edit a copy as /tmp/k/k1.py)
+    python tools/bench_pm_kernels.py 800 534 /tmp/k/k0.py /tmp/k/k1.py
+"""
 import sys, time, importlib.util
 from pathlib import Path
 import numpy as np
@@ -9,7 +17,8 @@ from photorecon.depth.mvs import MVSConfig
 from photorecon.io.images import *  # noqa
 import cv2
 
-root = Path("/tmp/pm2old/scene")
+import tempfile
+root = Path(tempfile.gettempdir()) / "pm_bench_scene"
 W, H = int(sys.argv[1]), int(sys.argv[2])
 if not (root / "scene.json").is_file():
     synthesize(SynthConfig(scene="blob", rig="ring", views=9, width=W, height=H, elevation=15, points=4000), root, overwrite=True)

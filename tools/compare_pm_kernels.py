@@ -2,7 +2,8 @@
 import sys, time, tempfile
 from pathlib import Path
 import numpy as np
-sys.path.insert(0, "/tmp/pm2old")
+import os
+sys.path.insert(0, os.environ.get("OLD_KERNELS_DIR", "/tmp/pm2old"))  # holds old_pm_kernels.py
 import old_pm_kernels as old
 from photorecon.depth import patchmatch as pmm, _pm_kernels as new
 from photorecon.depth.mvs import MVSConfig, run_mvs
