@@ -83,8 +83,9 @@ def _seed(seed, it, y, x):
 @njit(cache=True, fastmath=True)
 def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
     """Fill the reference window's values ``rv``, bilateral weights ``wk`` and sample offsets ``du, dv``
-    (clamped to the image); returns (sum w, mean, var, radius): the radius is the largest |offset| over all
-    samples (not the first sample's: offsets are clamped at the image border), for ``_ncc``'s bounds shortcut."""
+    (clamped to the image); returns (sum w, mean, var, radius, grid): the radius is the largest |offset| over all
+    samples (not the first sample's: offsets are clamped at the image border), for ``_ncc``'s bounds shortcut;
+    grid is the samples per side when the window is ``window_samples``' unclamped square grid, else 0."""
     H, W = ref.shape
     c = ref[y, x]
     sw = 0.0
@@ -109,11 +110,16 @@ def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
     vr = s2 / sw - mr * mr
     if vr < min_var:
         vr = min_var
-    return sw, mr, vr, rad
+    grid = 0
+    n = sdy.shape[0]
+    side = int(math.sqrt(n) + 0.5)
+    if side > 1 and side * side == n and x + sdx[0] >= 0 and y + sdy[0] >= 0 and x + sdx[n - 1] < W and y + sdy[n - 1] < H:
+        grid = side  # unclamped: du, dv are the row-major square grid of window_samples
+    return sw, mr, vr, rad, grid
 
 
-@njit(cache=True, fastmath=True)
-def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var):
+@njit(cache=True, fastmath=True, inline="always")
+def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
     """1 - bilaterally weighted NCC between the reference window at (x, y) (offsets ``du, dv``, values ``rv``,
     weights ``wk`` summing to ``sw``, weighted mean ``mr`` and variance ``vr``, largest |offset| ``rad``) and ``img`` sampled through the
     homography ``h`` (9 values, row-major), linearised at the window's centre (an affine map: over an
@@ -142,6 +148,35 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var):
     ex = (abs(j00) + abs(j01)) * rad
     ey = (abs(j10) + abs(j11)) * rad
     inside = cx - ex >= 0.0 and cx + ex <= xmax and cy - ey >= 0.0 and cy + ey <= ymax
+    if inside and grid > 0:
+        # an unclamped grid window wholly inside the source: walk its rows and columns by constant steps
+        step = du[1] - du[0]
+        sxr = cx + j00 * du[0] + j01 * dv[0]
+        syr = cy + j10 * du[0] + j11 * dv[0]
+        k = 0
+        for _ in range(grid):
+            sx = sxr
+            sy = syr
+            for _ in range(grid):
+                ix = int(sx)
+                iy = int(sy)
+                fx = sx - ix
+                fy = sy - iy
+                a = img[iy, ix]
+                b = img[iy, ix + 1]
+                c = img[iy + 1, ix]
+                d = img[iy + 1, ix + 1]
+                val = a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
+                wv = wk[k] * val
+                s1 += wv
+                s2 += wv * val
+                s12 += wv * rv[k]
+                sx += j00 * step
+                sy += j10 * step
+                k += 1
+            sxr += j01 * step
+            syr += j11 * step
+        return _ncc_finish(s1, s2, s12, sw, mr, vr, min_var)
     for k in range(du.shape[0]):
         sx = cx + j00 * du[k] + j01 * dv[k]
         sy = cy + j10 * du[k] + j11 * dv[k]
@@ -161,6 +196,11 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var):
         s1 += wv
         s2 += wv * val
         s12 += wv * rv[k]
+    return _ncc_finish(s1, s2, s12, sw, mr, vr, min_var)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _ncc_finish(s1, s2, s12, sw, mr, vr, min_var):
     ms = s1 / sw
     vs = s2 / sw - ms * ms
     if vs < min_var:
@@ -345,12 +385,12 @@ def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo
             if d <= 0 or not _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
                 cost[y, x] = 2.0 + lam_geo * delta_geo
                 continue
-            sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             if use_geo:
                 _geo_rays(GP, r0, r1, r2, gq)
             for j in range(S):
                 _homography(A, b, j, m, h)
-                c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
+                c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
                 if use_geo:
                     c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                 cj[j] = c
@@ -407,7 +447,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
-            sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             if use_geo:
                 _geo_rays(GP, r0, r1, r2, gq)
             # 1. candidates
@@ -462,7 +502,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                         cm[i, j] = 2.0 + lam_geo * delta_geo
                         continue
                     _homography(A, b, j, m, h)
-                    c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
+                    c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
                     if use_geo:
                         c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                     cm[i, j] = c
@@ -550,7 +590,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                         if wv[j] <= 0:
                             continue
                         _homography(A, b, j, m, h)
-                        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
+                        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
                         if use_geo:
                             c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                         acc += wv[j] * c
@@ -591,10 +631,10 @@ def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, d
                 for j in range(S):
                     out[j, y, x] = 2.0
                 continue
-            sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             for j in range(S):
                 _homography(A, b, j, m, h)
-                out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
+                out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
 
 
 @njit(cache=True)
@@ -606,5 +646,5 @@ def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
     wk = np.empty(ns, np.float64)
     du = np.empty(ns, np.float64)
     dv = np.empty(ns, np.float64)
-    sw, mr, vr, rad = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
-    return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, rad, h, min_var)
+    sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
+    return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
