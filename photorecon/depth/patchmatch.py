@@ -149,14 +149,15 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     init: tuple[np.ndarray, np.ndarray] | None = None, seeds: np.ndarray | None = None,
                     geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0,
                     init_cost: np.ndarray | None = None, n_refine: int = 6,
-                    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):
+                    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
     level's, upsampled: they only rank neighbours until each pixel's own cost is recomputed in the first
     half-pass), else computed. ``n_refine``: refinement hypotheses per pixel (6: perturbed and random; 3:
     perturbed only). ``prior``: the previous round's (depth, normal, cost) at this resolution, for the planar
-    prior (``planar.inject_prior``), else None. Returns (depth, normal, cost) at ``ref``'s resolution."""
+    prior (``planar.inject_prior``), else None; ``prior_after``: once more after the iterations, from their
+    result (the last round). Returns (depth, normal, cost) at ``ref``'s resolution."""
     k = _kernels()
     cfg = params.cfg
     H, W = ref_img.shape
@@ -208,6 +209,12 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
                       float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), depth, normal, cost)
+    if prior is not None and prior_after:
+        from .planar import textureless
+
+        st = inject_prior(depth, normal, cost, (depth.copy(), normal.copy(), cost.copy()), g.Kinv, dmin, dmax, cost_of,
+                          flat=textureless(ref_img, cfg.pm_radius))
+        log.debug("planar prior, after the last iteration: %s", st)
     return depth, normal, cost
 
 
@@ -276,7 +283,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     depth, normal, cost = patchmatch_view(
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
-        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior)
+        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1)
     return depth, normal, cost, ref
 
 

@@ -32,16 +32,26 @@ from typing import Callable
 import numpy as np
 
 SUPPORT_COST = 0.3  # support points: cost below this
-MAX_EDGE = 0.2  # drop triangles with an edge longer than this fraction of the image's long side
+MAX_EDGE = 0.3  # drop triangles with an edge longer than this fraction of the image's long side
 MAX_ANGLE_DEG = 30.0  # drop triangles whose plane is this far from a vertex's normal
-CANDIDATE_COST = 0.3  # inject at pixels whose current cost is above this
+CANDIDATE_COST = 0.3  # try the prior at pixels whose current cost is above this
+SAME_DEPTH = 2e-3  # ... and whose depth differs from the prior's by more than this (relative)
 ACCEPT_COST = 0.6  # keep a prior plane whose cost is below this ...
-MARGIN = 0.1  # ... and at most this much above the current hypothesis's
+MARGIN = 0.05  # ... and at most this much above the current hypothesis's
+TEXTURELESS_STD = 0.01  # a reference window (grey 0..1) whose standard deviation is below this has no texture ...
+FILL_COST = 0.75  # ... and takes the prior with this cost (confidence 0.25) when it is not worse than the current
 
 
 def _cell(shape: tuple[int, int]) -> int:
     """Support grid cell in pixels: about 100 cells along the long side, at least 3 px."""
     return max(3, int(round(max(shape) / 100)))
+
+
+def _rays(xs: np.ndarray, ys: np.ndarray, Kinv: np.ndarray) -> np.ndarray:
+    """Kinv [x, y, 1] per pixel, (N, 3); einsum rather than a BLAS product, whose idle threads would spin
+    against numba's on a busy machine."""
+    p = np.stack([xs, ys, np.ones_like(xs)], 1).astype(np.float64)
+    return np.einsum("ij,nj->ni", Kinv, p)
 
 
 def support_points(depth: np.ndarray, cost: np.ndarray, cell: int, max_cost: float = SUPPORT_COST) -> tuple[np.ndarray, np.ndarray]:
@@ -80,7 +90,7 @@ def prior_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, Kinv: 
         return pd, pn, stats
     S = tri.simplices
     stats["triangles"] = int(len(S))
-    rays = np.stack([xs, ys, np.ones_like(xs)], 1).astype(np.float64) @ Kinv.T
+    rays = _rays(xs, ys, Kinv)
     X = rays * depth[ys, xs][:, None]
     P = uv[S]  # (T, 3, 2) pixel corners
     edge = np.max(np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2), axis=1)
@@ -101,7 +111,7 @@ def prior_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, Kinv: 
     inside = t >= 0
     inside[inside] = ok[t[inside]]
     qy, qx, t = qy[inside], qx[inside], t[inside]
-    r = np.stack([qx, qy, np.ones_like(qx)], 1).astype(np.float64) @ Kinv.T
+    r = _rays(qx, qy, Kinv)
     nt = n[t]
     den = np.einsum("pi,pi->p", nt, r)
     z = np.einsum("pi,pi->p", nt, V[t, 0]) / np.where(np.abs(den) > 1e-12, den, np.nan)
@@ -112,17 +122,34 @@ def prior_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, Kinv: 
     return pd, pn, stats
 
 
+def textureless(img: np.ndarray, radius: int, max_std: float = TEXTURELESS_STD) -> np.ndarray:
+    """Pixels whose (2 ``radius`` + 1)^2 window of the grey image ``img`` has a standard deviation below
+    ``max_std``: photometric matching has no evidence there (NCC of a flat window is 0, cost 1, at any depth)."""
+    import cv2
+
+    k = (2 * radius + 1, 2 * radius + 1)
+    im = img.astype(np.float32)
+    m = cv2.blur(im, k, borderType=cv2.BORDER_REFLECT)
+    var = cv2.blur(im * im, k, borderType=cv2.BORDER_REFLECT) - m * m
+    return var < max_std * max_std
+
+
 def inject_prior(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, prev: tuple[np.ndarray, np.ndarray, np.ndarray],
                  Kinv: np.ndarray, dmin: float, dmax: float,
-                 cost_of: Callable[[np.ndarray, np.ndarray, np.ndarray], None]) -> dict:
+                 cost_of: Callable[[np.ndarray, np.ndarray, np.ndarray], None], flat: np.ndarray | None = None) -> dict:
     """Replace, in place, the non-confident hypotheses of (``depth``, ``normal``, ``cost``) by the planar prior
     where the round's cost accepts it. ``prev``: (depth, normal, cost) of the previous round at this
     resolution (the support points come from it); ``cost_of(depth, normal, out)`` fills ``out`` with the
-    round's cost of each pixel's plane (pixels of depth 0 are skipped by the kernel). Returns stats."""
+    round's cost of each pixel's plane (pixels of depth 0 are skipped by the kernel). ``flat``: the textureless
+    pixels (``textureless``), where the photometric cost cannot accept a plane: there the prior is kept when its
+    cost (the geometric term through the other views decides, photometric being flat) is at most ``MARGIN``
+    above the current one's, with cost ``FILL_COST``; None: no textureless fill. Returns stats."""
     d_prev, n_prev, c_prev = prev
     want = (c_prev > CANDIDATE_COST) | ~(d_prev > 0)
     pd, pn, stats = prior_planes(d_prev, n_prev, c_prev, Kinv, want=want)
     cand = (pd >= dmin) & (pd <= dmax)
+    # pixels whose plane already agrees with the prior (depth within SAME_DEPTH) gain nothing
+    cand &= ~(np.abs(depth - pd) <= SAME_DEPTH * pd)
     stats["candidates"] = int(cand.sum())
     stats["injected"] = 0
     if not cand.any():
@@ -133,10 +160,16 @@ def inject_prior(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, prev: 
     cur_ok = cand & (depth > 0)
     cost_of(np.where(cur_ok, depth, 0).astype(np.float32), np.ascontiguousarray(normal, np.float32), c_cur)
     c_cur[~cur_ok] = np.inf
-    cost[cur_ok] = c_cur[cur_ok]  # this round's cost, where the start was the coarser level's
-    take = cand & (c_prior < ACCEPT_COST) & (c_prior <= np.minimum(c_cur, 10.0) + MARGIN)
+    not_worse = c_prior <= np.minimum(c_cur, 10.0) + MARGIN
+    take = cand & (c_prior < ACCEPT_COST) & not_worse
     depth[take] = pd[take]
     normal[take] = pn[take]
     cost[take] = c_prior[take]
     stats["injected"] = int(take.sum())
+    if flat is not None:
+        fill = cand & ~take & flat & not_worse & (c_prior < 2.0)
+        depth[fill] = pd[fill]
+        normal[fill] = pn[fill]
+        cost[fill] = np.minimum(c_prior[fill], FILL_COST)
+        stats["filled"] = int(fill.sum())
     return stats
