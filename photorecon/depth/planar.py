@@ -18,12 +18,18 @@ ACMP triangulates the confident pixels in the image and uses each triangle's pla
    the same photometric + geometric cost, the same sources) and replaces the current plane when its cost is
    below ``ACCEPT_COST`` and not more than ``MARGIN`` above the current one's. The round's propagation then
    spreads the injected planes and its refinement perturbs them, so a prior only has to be roughly right
-   somewhere in a region.
+   somewhere in a region. The same is done once more after the last round's iterations.
+4. **Textureless fill** (after the last round only): where the reference window is flat (grey standard
+   deviation below ``TEXTURELESS_STD``) NCC is 0 at any depth, so no photometric threshold can accept a
+   plane; there the prior is kept when its cost (photometric, flat, plus ACMM's geometric term through the
+   other views' depth maps) is not more than ``MARGIN`` above the current plane's, with cost ``FILL_COST``
+   (confidence 0.25: a low TSDF weight, just above the default ``min_confidence``). The multi-view filter
+   after PatchMatch then keeps only the fills that ``min_consistent`` other views confirm.
 
-Unlike ACMP, the prior is not a term of the matching cost (that would change the propagation kernel): a prior
-plane is only ever kept where the photometric evidence accepts it, so it cannot paint planes over the sky or
-across a depth step that the images contradict; the filters after PatchMatch (confidence, agreement of
-``min_consistent`` other views) apply unchanged.
+Unlike ACMP, the prior is not a term of the matching cost (that would change the propagation kernel): on
+textured pixels a prior plane is only kept where the photometric evidence accepts it, so it cannot paint
+planes across a depth step that the images contradict; on flat pixels (the sky too) only the triangle checks
+and the agreement of other views stand between a prior plane and the output.
 """
 from __future__ import annotations
 
