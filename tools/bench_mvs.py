@@ -4,7 +4,8 @@
 1. speed: 9 views of a textured blob at 1600x1067 (each view has the other 8 as sources), true poses;
    seconds per view after the numba warm-up (reported apart), peak memory of the whole run.
 2. accuracy, true poses: room and knot, 30 sphere views at 512x384 (as tools/bench.py): fraction of the
-   surviving depths within 1% of the truth and coverage of the true surface pixels; PatchMatch and sweep.
+   surviving depths within 1% of the truth and coverage of the true surface pixels; PatchMatch (with and
+   without the planar prior) and sweep.
 3. what the multi-scale geometric consistency buys (ACMM): the room with PatchMatch at one level without
    the geometric term, and with it.
 4. memory (only when asked: --only memory): peak of 50 views at 1600x1067, 8 sources each.
@@ -109,7 +110,8 @@ def accuracy(tmp: Path) -> list[dict]:
         root = tmp / scene
         synthesize(SynthConfig(scene=scene, views=30, width=512, height=384, points=3000), root, overwrite=True)
         ds = Dataset.open(root)
-        for label, cfg in (("patchmatch", MVSConfig()), ("patchmatch, 1 consistent view", MVSConfig(min_consistent=1)),
+        for label, cfg in (("patchmatch", MVSConfig()), ("patchmatch + planar prior", MVSConfig(planar_prior=True)),
+                           ("patchmatch, 1 consistent view", MVSConfig(min_consistent=1)),
                            ("sweep", MVSConfig(method="sweep", min_confidence=0.5, min_consistent=1))):
             r = run(ds, root, tmp / f"{scene}_out_{len(rows)}", cfg)
             rows.append({"section": "true poses, 30 views 512x384", "scene": scene, "method": label, **r})

@@ -11,6 +11,7 @@ Per dataset: MVS seconds per view (JIT warm-up excluded: it runs first on a tiny
 preview PNG (the mesh from outside and from the input cameras) in --out. Prints a table; --json writes it.
 
     python tools/bench_real.py [--only walnut1,herz] [--out bench_real] [--json real.json] [--max-size 1600]
+        [--planar-prior | --no-planar-prior] [--data ../shared/data]
 """
 from __future__ import annotations
 
@@ -36,10 +37,10 @@ from photorecon.synthetic import SynthConfig, synthesize
 
 DATA = Path(__file__).resolve().parents[1] / "../shared/data"
 SETS = {
-    "walnut1": DATA / "walnuts/2016_10_24__17_43_02",
-    "walnut2": DATA / "walnuts/2016_10_25__12_57_06",
-    "herz": DATA / "herz-jesu-p8",
-    "entry": DATA / "entry-p10",
+    "walnut1": "walnuts/2016_10_24__17_43_02",
+    "walnut2": "walnuts/2016_10_25__12_57_06",
+    "herz": "herz-jesu-p8",
+    "entry": "entry-p10",
 }
 TAUS = (0.0005, 0.001, 0.002)
 
@@ -96,14 +97,18 @@ def main() -> int:
     ap.add_argument("--out", default="bench_real", help="output folder (depth maps, meshes, previews)")
     ap.add_argument("--json", help="write the rows as JSON here")
     ap.add_argument("--max-size", type=int, default=None, help="override MVSConfig.max_size")
+    ap.add_argument("--planar-prior", action=argparse.BooleanOptionalAction, default=None,
+                    help="override MVSConfig.planar_prior")
+    ap.add_argument("--data", default=str(DATA), help="the shared data folder (default: ../shared/data)")
     args = ap.parse_args()
     progress.set_enabled(False)
-    cfg = MVSConfig() if args.max_size is None else MVSConfig(max_size=args.max_size)
+    over = {k: v for k, v in (("max_size", args.max_size), ("planar_prior", args.planar_prior)) if v is not None}
+    cfg = MVSConfig(**over)
     warm = warm_up()
     print(f"numba warm-up (compile or cache load): {warm:.1f} s", flush=True)
     rows = []
     for name in args.only.split(","):
-        root = SETS[name]
+        root = Path(args.data) / SETS[name]
         if not root.is_dir():
             print(f"{name}: {root} not found, skipped", file=sys.stderr)
             continue

@@ -72,6 +72,7 @@ class MVSConfig:
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees"})
     geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
     geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (pixels of reprojection error)"})
+    planar_prior: bool = field(default=False, metadata={"help": "patchmatch: planar prior (ACMP-style): planes through triangulated confident pixels are tried where the depth is not confident (before each finer round, and after the last) and kept where the images accept them; textureless pixels take them unless the other views' depths reject them (off: on the Strecha facades it left the confirmed pixels unchanged)"})
     triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed, for view selection and depth ranges"})
     pm_seed: int = field(default=0, metadata={"help": "patchmatch: random seed (results are deterministic for a seed)"})
     n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)"})

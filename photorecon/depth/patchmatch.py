@@ -148,13 +148,16 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     dmin: float, dmax: float, params: PatchMatchParams, iterations: int,
                     init: tuple[np.ndarray, np.ndarray] | None = None, seeds: np.ndarray | None = None,
                     geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0,
-                    init_cost: np.ndarray | None = None, n_refine: int = 6):
+                    init_cost: np.ndarray | None = None, n_refine: int = 6,
+                    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
     level's, upsampled: they only rank neighbours until each pixel's own cost is recomputed in the first
     half-pass), else computed. ``n_refine``: refinement hypotheses per pixel (6: perturbed and random; 3:
-    perturbed only). Returns (depth, normal, cost) at ``ref``'s resolution."""
+    perturbed only). ``prior``: the previous round's (depth, normal, cost) at this resolution, for the planar
+    prior (``planar.inject_prior``), else None; ``prior_after``: once more after the iterations, from their
+    result (the last round). Returns (depth, normal, cost) at ``ref``'s resolution."""
     k = _kernels()
     cfg = params.cfg
     H, W = ref_img.shape
@@ -187,6 +190,16 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         best_k = max(1, min(len(sources), (len(sources) + 1) // 2))
         k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta,
                        params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, depth, normal, cost)
+    if prior is not None:  # planar prior (ACMP-style): hypotheses from triangulated confident pixels
+        from .planar import inject_prior
+
+        def cost_of(d, n, out):
+            k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta, params.sdy,
+                           params.sdx, params.sspat, params.sigma_c, params.min_var, max(1, min(len(sources), (len(sources) + 1) // 2)),
+                           d, n, out)
+
+        st = inject_prior(depth, normal, cost, prior, g.Kinv, dmin, dmax, cost_of)
+        log.debug("planar prior: %s", st)
     for it in range(iterations):
         tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
         pert = max(0.02 * 0.5 ** it, 0.002)
@@ -196,6 +209,12 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
                       float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), depth, normal, cost)
+    if prior is not None and prior_after:
+        from .planar import textureless
+
+        st = inject_prior(depth, normal, cost, (depth.copy(), normal.copy(), cost.copy()), g.Kinv, dmin, dmax, cost_of,
+                          flat=textureless(ref_img, cfg.pm_radius))
+        log.debug("planar prior, after the last iteration: %s", st)
     return depth, normal, cost
 
 
@@ -240,7 +259,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     ref = level_view(job.view, lvl)
     src_names = round_sources(job, r, by_name, cfg)
     srcs = [level_view(by_name[s].view, lvl) for s in src_names]
-    init = c_init = geo = None
+    init = c_init = geo = prior = None
     if not first:
         prev_lvl = rounds[r - 1][0]
         v_prev = level_view(job.view, prev_lvl)
@@ -255,12 +274,16 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
             _kernels().upsample_planes(d_prev, n_prev, np.linalg.inv(_pinhole_K(v_prev)),
                                        np.linalg.inv(_pinhole_K(ref)), d, n)
             init = (d, n)
+        if cfg.planar_prior:
+            c_prev = c_init if c_init is not None else cv2.resize(load(name, r - 1, "cost"), ref.intrinsics.size,
+                                                                  interpolation=cv2.INTER_NEAREST)
+            prior = (init[0].copy(), np.array(init[1], np.float32), c_prev)
         if geometric and src_names:
             geo = ([load(s, r - 1, "depth") for s in src_names], [level_view(by_name[s].view, prev_lvl) for s in src_names])
     depth, normal, cost = patchmatch_view(
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
-        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine)
+        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1)
     return depth, normal, cost, ref
 
 
