@@ -372,16 +372,16 @@ def _run_reconstruct(args):
                         config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args),
                         config_from_args(TextureConfig, args), config_from_args(ClusterConfig, args))
     rep = run(args.images, args.out, cfgs, force=args.force, overwrite=args.overwrite)
-    p, d, m = rep["poses"], rep["depth"], rep["mesh"]
+    p, d, m = rep.poses, rep.depth, rep.mesh
     print(f"reconstruct: {p.get('registered')} images registered, {d.get('views')} depth maps ({d.get('source')}), "
           f"mesh {m.get('vertices')} vertices / {m.get('faces')} faces")
     print(f"  files: {args.out}/mesh.ply, preview.png, report.html, report.json")
-    if rep.get("texture"):
-        t = rep["texture"]
+    if rep.texture:
+        t = rep.texture
         print(f"  textured: {t['faces']} faces, {t['atlas_size']}x{t['atlas_size']} atlas -> {args.out}/textured/"
               "mesh.obj (+ mesh.mtl, texture.png), mesh.glb")
-    if rep["warnings"]:
-        print(f"  {len(rep['warnings'])} warning(s); see report.json")
+    if rep.warnings:
+        print(f"  {len(rep.warnings)} warning(s); see report.json")
     return 0
 
 

@@ -1069,7 +1069,7 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     from .io.dataset import Dataset
     from .io.output import prepare_output
     from .layout import Layout
-    from .mesh import CleanConfig, clean, export
+    from .mesh import CleanConfig
     from .preview import render_preview
 
     cfg = cfg or FusionConfig()
@@ -1078,16 +1078,29 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     out = prepare_output(out, overwrite, inputs=(root,) + ((masks_dir,) if masks_dir else ()))
     from .distributed import executor
 
-    with executor(cluster) as ex:
-        mesh = fuse(frames, cfg, ds.model.points, ex, ds, Layout(out).work)
-    mesh = clean(mesh, clean_cfg or CleanConfig(), cameras=[f.view for f in frames])
     layout = Layout(out)
-    path = layout.mesh("ply")
+    cameras = [f.view for f in frames]
+    with executor(cluster) as ex:
+        mesh, _ = fuse_to_files(frames, cfg, clean_cfg or CleanConfig(), layout, formats, cameras,
+                                ds.model.points, ex, ds, layout.work)
+    render_preview(mesh, layout.preview, cameras=cameras)
+    return layout.mesh("ply")
+
+
+def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout, formats: tuple[str, ...],
+                  cameras: list[View], sparse_points: np.ndarray | None = None, executor=None, dataset=None,
+                  work_dir=None) -> tuple[trimesh.Trimesh, dict]:
+    """The fusion stage of ``reconstruct`` and ``fuse``: ``fuse`` -> ``clean`` (floaters judged against
+    ``cameras``) -> ``layout.mesh(fmt)`` for each format. Returns the mesh and its facts (counts and
+    ``surface_report``: watertight, boundary edges, invented fraction), which are also logged."""
+    from .mesh import clean, export
+
+    mesh = clean(fuse(frames, cfg, sparse_points, executor, dataset, work_dir), clean_cfg, cameras=cameras)
     for fmt in formats:
         export(mesh, layout.mesh(fmt))
-    render_preview(mesh, layout.preview, cameras=[f.view for f in frames])
     surface = surface_report(mesh, frames)
-    log.info("fuse: %d views -> %s (%d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of the area "
-             "invented)", len(frames), path, len(mesh.vertices), len(mesh.faces), surface["watertight"],
+    log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
+             "invented", len(frames), len(mesh.vertices), len(mesh.faces), surface["watertight"],
              surface["boundary_edges"], 100 * surface["invented_fraction"])
-    return path
+    return mesh, {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
+                  "mesher": cfg.mesher, **surface}

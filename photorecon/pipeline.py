@@ -154,13 +154,13 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 overwrite: bool = False) -> dict:
     """Run the whole pipeline; returns the report (also written to OUT/report.json)."""
     from .depth.mvs import run_mvs
-    from .fusion import fuse, load_frames, surface_report
+    from .fusion import fuse_to_files, load_frames
     from .io.colmap_text import write_colmap_text
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
     from .io.output import prepare_output
     from .ingest import VIDEO_SUFFIXES
-    from .mesh import clean, export, load_mesh, parse_formats
+    from .mesh import export, load_mesh, parse_formats
     from .preview import render_preview
     from .scale import given_units, scale_output
     from .sfm import run_sfm
@@ -267,16 +267,9 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 
         def fusion() -> dict:
             frames = load_frames(ds, cfgs.fusion)
-            mesh = clean(fuse(frames, cfgs.fusion, ds.model.points, executor(), ds, work / "fusion"), cfgs.clean,
-                         cameras=ds.views)
-            for fmt in formats:
-                export(mesh, layout.mesh(fmt))
-            fused["mesh"] = mesh
-            surface = surface_report(mesh, frames)  # watertight, boundary edges, invented fraction
-            log.info("mesh: %d vertices, %d faces; watertight: %s, %.1f%% of its area invented", len(mesh.vertices),
-                     len(mesh.faces), surface["watertight"], 100 * surface["invented_fraction"])
-            return {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
-                    "mesher": cfgs.fusion.mesher, **surface}
+            fused["mesh"], info = fuse_to_files(frames, cfgs.fusion, cfgs.clean, layout, formats, ds.views,
+                                                ds.model.points, executor(), ds, work / "fusion")
+            return info
 
         def preview() -> None:
             mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))

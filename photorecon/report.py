@@ -452,7 +452,8 @@ def _img_tag(path: Path, width: int | None = None) -> str:
 
 def _viewer_section(out: Path) -> str:
     """report.html's 3D view of OUT's mesh and cameras (a line saying why when there is none)."""
-    path = Layout(out).viewer_mesh if Layout(out).viewer_mesh.is_file() else find_mesh(out)
+    small = Layout(out).viewer_mesh
+    path = small if small.is_file() else find_mesh(out)
     if path is None:
         return "<p>No mesh in this folder.</p>"
     from .mesh import load_mesh

@@ -1,6 +1,7 @@
 """Test inputs made on the spot, shared by the test suite and the benchmarks: small ONNX models built with the
 ``onnx`` package (``pip install photorecon[test]``: an exact "oracle" depth model, deliberately broken models,
-a random-weight network of MiDaS-small-like compute; no weights are downloaded), and geotagged JPEGs."""
+a random-weight network of MiDaS-small-like compute; no weights are downloaded), geotagged JPEGs, and synthetic
+datasets in a test's temporary folder (``synth_scene``)."""
 from __future__ import annotations
 
 import numpy as np
@@ -127,3 +128,13 @@ def write_gps_jpeg(path, lla, image=None, quality: int = 95):
     im = Image.new("RGB", (32, 24), (90, 90, 90)) if image is None else Image.fromarray(np.asarray(image, np.uint8))
     im.save(path, "JPEG", exif=exif, quality=quality)
     return path
+
+
+def synth_scene(tmp_path_factory, name: str, **cfg):
+    """A synthetic dataset (``SynthConfig(**cfg)``, rendered with ground truth) in a new temporary folder
+    ``name`` of pytest's ``tmp_path_factory``: the scene fixtures of the test suite. Returns its path."""
+    from .synthetic import SynthConfig, synthesize
+
+    out = tmp_path_factory.mktemp(name)
+    synthesize(SynthConfig(**cfg), out, overwrite=True)
+    return out

@@ -16,7 +16,7 @@ from photorecon.errors import BadArgumentError
 from photorecon.fusion import FusionConfig, fuse, load_frames, tsdf_fuse, tsdf_fuse_chunked
 from photorecon.io.dataset import Dataset
 from photorecon.metrics import doubled_shell_fraction, mesh_metrics
-from photorecon.synthetic import SynthConfig, synthesize
+from photorecon.testing import synth_scene
 
 # tiny and quick: 8 views of 96x72, two pyramid levels
 PM = dict(n_sources=3, pm_levels=2, pm_iterations=3, pm_fine_iterations=1, pm_final_iterations=1, min_consistent=1)
@@ -24,9 +24,7 @@ PM = dict(n_sources=3, pm_levels=2, pm_iterations=3, pm_fine_iterations=1, pm_fi
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    out = tmp_path_factory.mktemp("tiny8")
-    synthesize(SynthConfig(scene="blob", views=8, width=96, height=72, points=600, seed=3), out, overwrite=True)
-    return out
+    return synth_scene(tmp_path_factory, "tiny8", scene="blob", views=8, width=96, height=72, points=600, seed=3)
 
 
 @pytest.fixture(scope="module")

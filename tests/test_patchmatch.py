@@ -12,6 +12,7 @@ from photorecon.io.colmap_text import SparseModel
 from photorecon.io.dataset import Dataset
 from photorecon.metrics import depth_metrics
 from photorecon.synthetic import SynthConfig, synthesize
+from photorecon.testing import synth_scene
 
 # small and quick: two pyramid levels, few iterations (the defaults are for 1600-px photos)
 FAST = dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=2, pm_final_iterations=1)
@@ -98,9 +99,7 @@ def test_patchmatch_is_deterministic_for_a_seed(blob_small):
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
-    root = tmp_path_factory.mktemp("room")
-    synthesize(SynthConfig(scene="room", views=16, width=256, height=192, points=2000, seed=4), root, overwrite=True)
-    return root
+    return synth_scene(tmp_path_factory, "room", scene="room", views=16, width=256, height=192, points=2000, seed=4)
 
 
 def _depth_scores(ds, out, root):

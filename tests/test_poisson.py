@@ -10,24 +10,21 @@ from photorecon.io.dataset import Dataset
 from photorecon.mesh import CleanConfig, boundary_edges, clean
 from photorecon.metrics import mesh_metrics
 from photorecon.preview import bulk_frame
-from photorecon.synthetic import SynthConfig, synthesize
+from photorecon.testing import synth_scene
 
 
 @pytest.fixture(scope="module")
 def sphere_small(tmp_path_factory):
     """16 sphere views of the blob at 160x120: every side seen."""
-    out = tmp_path_factory.mktemp("poisson_sphere")
-    synthesize(SynthConfig(scene="blob", views=16, width=160, height=120, points=300, seed=2), out, overwrite=True)
-    return out
+    return synth_scene(tmp_path_factory, "poisson_sphere", scene="blob", views=16, width=160, height=120,
+                       points=300, seed=2)
 
 
 @pytest.fixture(scope="module")
 def ring_small(tmp_path_factory):
     """12 ring views (elevation 20 deg) of the blob at 160x120: the bottom is never seen."""
-    out = tmp_path_factory.mktemp("poisson_ring")
-    synthesize(SynthConfig(scene="blob", rig="ring", views=12, width=160, height=120, points=300, seed=2), out,
-               overwrite=True)
-    return out
+    return synth_scene(tmp_path_factory, "poisson_ring", scene="blob", rig="ring", views=12, width=160,
+                       height=120, points=300, seed=2)
 
 
 def test_normals_from_depth_face_the_camera_and_match_the_truth(sphere_small):

@@ -17,6 +17,7 @@ from photorecon.io.convert import convert_cameras
 from photorecon.io.dataset import read_model
 from photorecon.metrics import pose_metrics
 from photorecon.sfm import SfMConfig, run_sfm
+from photorecon.testing import synth_scene
 
 
 @pytest.mark.slow
@@ -248,12 +249,8 @@ def test_sfm_from_a_video(ring16, tmp_path):
 @pytest.fixture(scope="module")
 def ring_tiny(tmp_path_factory):
     """16 ring views of the blob at 240x180: SfM in about 3 s."""
-    from photorecon.synthetic import SynthConfig, synthesize
-
-    out = tmp_path_factory.mktemp("ring_tiny")
-    synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=240, height=180, points=300, seed=5), out,
-               overwrite=True)
-    return out
+    return synth_scene(tmp_path_factory, "ring_tiny", scene="blob", rig="ring", views=16, width=240,
+                       height=180, points=300, seed=5)
 
 
 def _database(out):

@@ -54,7 +54,7 @@ def result(tmp_path_factory):
     views = []
     (out / "images").mkdir()
     for i, p in enumerate(ring_positions(8, 5.0, 20, center=(0, 0, 0.3))):
-        views.append(View(f"v{i}", intr, look_at(p, [0, 0, 0.3]), extra={"image_file": f"v{i}.png"}))
+        views.append(View(f"v{i}", intr, look_at(p, [0, 0, 0.3]), image_file=f"v{i}.png"))
         write_image(out / "images" / f"v{i}.png", np.full((48, 64, 3), (30 * i, 100, 200 - 20 * i), np.uint8))
     write_colmap_text(SparseModel(views), out / "sparse" / "0")
     (out / "depth").mkdir()

@@ -158,15 +158,7 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
             sx = sxr
             sy = syr
             for _ in range(grid):
-                ix = int(sx)
-                iy = int(sy)
-                fx = sx - ix
-                fy = sy - iy
-                a = img[iy, ix]
-                b = img[iy, ix + 1]
-                c = img[iy + 1, ix]
-                d = img[iy + 1, ix + 1]
-                val = a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
+                val = _bilerp(img, sx, sy)
                 wv = wk[k] * val
                 s1 += wv
                 s2 += wv * val
@@ -183,20 +175,26 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
         if not inside:
             sx = min(max(sx, 0.0), xmax)
             sy = min(max(sy, 0.0), ymax)
-        ix = int(sx)
-        iy = int(sy)
-        fx = sx - ix
-        fy = sy - iy
-        a = img[iy, ix]
-        b = img[iy, ix + 1]
-        c = img[iy + 1, ix]
-        d = img[iy + 1, ix + 1]
-        val = a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
+        val = _bilerp(img, sx, sy)
         wv = wk[k] * val
         s1 += wv
         s2 += wv * val
         s12 += wv * rv[k]
     return _ncc_finish(s1, s2, s12, sw, mr, vr, min_var)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _bilerp(img, sx, sy):
+    """``img`` bilinearly at (sx, sy), which must lie in [0, w - 1) x [0, h - 1)."""
+    ix = int(sx)
+    iy = int(sy)
+    fx = sx - ix
+    fy = sy - iy
+    a = img[iy, ix]
+    b = img[iy, ix + 1]
+    c = img[iy + 1, ix]
+    d = img[iy + 1, ix + 1]
+    return a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
 
 
 @njit(cache=True, fastmath=True, inline="always")
