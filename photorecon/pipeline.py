@@ -151,8 +151,8 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
 
 
 def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
-                overwrite: bool = False) -> dict:
-    """Run the whole pipeline; returns the report (also written to OUT/report.json)."""
+                overwrite: bool = False) -> ReconstructResult:
+    """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
     from .depth.mvs import run_mvs
     from .fusion import fuse_to_files, load_frames
     from .io.colmap_text import write_colmap_text

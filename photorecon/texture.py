@@ -528,13 +528,6 @@ def export_textured(mesh: trimesh.Trimesh, folder: str | Path) -> Path:
     return folder
 
 
-def load_textured(path: str | Path) -> trimesh.Trimesh:
-    """A textured OBJ or GLB as one ``Trimesh`` with ``TextureVisuals`` (no processing)."""
-    from .mesh import load_mesh
-
-    return load_mesh(path)
-
-
 # --- the stage on a reconstruct output folder -------------------------------------------------------------------
 def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path: str | Path | None = None,
                    dest: str | Path | None = None, mesh: trimesh.Trimesh | None = None) -> dict:

@@ -236,7 +236,7 @@ class MonoResult(Result):
 
 
 def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None, cfg: MonoConfig | None = None,
-             executor: Executor | None = None, work_dir: str | Path | None = None) -> dict:
+             executor: Executor | None = None, work_dir: str | Path | None = None) -> MonoResult:
     """Monocular depth for every view of a ``Dataset`` (synth layout out: NAME.npy + NAME.png). Views with too
     few SfM points or a bad fit are excluded and reported. Raises ``NoDepthError`` if none is left.
 

@@ -538,7 +538,7 @@ class MVSResult(Result):
 
 
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
-            work_dir: str | Path | None = None) -> dict:
+            work_dir: str | Path | None = None) -> MVSResult:
     """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
     with the same aspect ratio when the images exceed ``max_size``), confidences, normals and previews
     to ``out_dir`` (default: DATASET/depth). Returns a report dict. Raises ``NoDepthError`` if no view
