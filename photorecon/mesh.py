@@ -195,6 +195,42 @@ def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
     return from_open3d(to_open3d(mesh).simplify_quadric_decimation(int(target_faces)))
 
 
+def harmonic_fill(n_vertices: int, edges: np.ndarray, known: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Values (n_vertices, C) on a graph's nodes (a mesh's vertices, or its faces with ``face_adjacency``):
+    ``values`` (k, C) at the nodes ``known`` (k,) kept, the others the solution of the (uniform-weight) Laplace
+    equation over ``edges`` (E, 2): each unknown node is the mean of its neighbours, so values diffuse
+    smoothly from the known ones (a hole patch's colour blends its rim's instead of copying the nearest rim
+    point's). Unknown nodes not connected to a known one get the known values' mean (0 without any)."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.linalg import spsolve
+
+    values = np.asarray(values, np.float64).reshape(len(known), -1)
+    out = np.empty((n_vertices, values.shape[1]))
+    out[:] = values.mean(0) if len(values) else 0.0
+    out[known] = values
+    e = np.asarray(edges, np.int64).reshape(-1, 2)
+    is_known = np.zeros(n_vertices, bool)
+    is_known[known] = True
+    if is_known.all() or not len(e) or not len(known):
+        return out
+    e = np.vstack([e, e[:, ::-1]])
+    A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
+    A.data[:] = 1.0
+    # only unknown vertices in a component with a known one are solvable
+    _, comp = connected_components(A, directed=False)
+    reach = np.isin(comp, np.unique(comp[is_known]))
+    free = np.flatnonzero(~is_known & reach)
+    if not len(free):
+        return out
+    L = (sparse.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    fixed = np.flatnonzero(is_known)
+    rhs = -(L[free][:, fixed] @ out[fixed])
+    sol = spsolve(L[free][:, free].tocsc(), rhs)
+    out[free] = np.asarray(sol).reshape(len(free), -1)
+    return out
+
+
 def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:
     """Close holes that fit in a sphere of radius ``hole_size`` (scene units; Open3D's tensor ``fill_holes``,
     VTK's vtkFillHolesFilter)."""
