@@ -61,7 +61,7 @@ class TextureConfig:
     smoothness: float = field(default=0.4, metadata={"help": "label smoothing: cost of a neighbour with another view, relative to a face's best-to-worst quality range"})
     smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)"})
     exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
-    consistency: float = field(default=30.0, metadata={"help": "photo-consistency: a view whose colour of a face differs from the median over the face's views by more than this (RGB distance, 0-255) is not used for it (0 = off)"})
+    consistency: float = field(default=20.0, metadata={"help": "photo-consistency: a view whose colour of a face differs from the median over the face's views by more than this (RGB distance, 0-255) is not used for it (0 = off)"})
 
 
 @dataclass

@@ -218,7 +218,7 @@ def test_photo_consistency_drops_views_that_show_an_occluder_the_mesh_lacks(blob
     truth = Renderer(mesh, seed=3)
     held_out = make_views(SynthConfig(rig="ring", views=4, elevation=35, width=160, height=120, seed=11, jitter_deg=3))
     under, psnr = {}, {}
-    for c in (30.0, 0.0):
+    for c in (20.0, 0.0):
         tex = texture_mesh(mesh, views, images, TextureConfig(atlas_size=1024, consistency=c), ds.mask)
         n = 0
         for k, (x, y, r) in bad.items():
@@ -230,5 +230,5 @@ def test_photo_consistency_drops_views_that_show_an_occluder_the_mesh_lacks(blob
         psnr[c] = np.mean([_psnr(r_tex.render(v).rgb, t.rgb, t.mask) for v, t in ((v, truth.render(v)) for v in held_out)])
     # measured: 101 faces of 2238 (faces that fewer than 3 photos see, and faces at the disc's edge), and
     # 27.9 dB against 13.9 dB
-    assert under[0.0] > 1000 and under[30.0] <= 0.08 * under[0.0], under
-    assert psnr[30.0] > psnr[0.0] + 6.0, psnr
+    assert under[0.0] > 1000 and under[20.0] <= 0.08 * under[0.0], under
+    assert psnr[20.0] > psnr[0.0] + 6.0, psnr
