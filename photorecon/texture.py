@@ -250,8 +250,8 @@ def estimate_gains(images: Callable[[int], np.ndarray], views: list[View], mesh:
     return solve_gains(f, v, c.astype(np.float64), len(views))
 
 
-def photo_outliers(face: np.ndarray, view: np.ndarray, colors: np.ndarray, n_faces: int,
-                   threshold: float = 30.0, min_views: int = 3) -> np.ndarray:
+def photo_outliers(face: np.ndarray, view: np.ndarray, colors: np.ndarray,
+                   threshold: float = 20.0, min_views: int = 3) -> np.ndarray:
     """(N,) bool: observations (``face``, ``view``, exposure-corrected ``colors`` (N, 3), 0-255) whose colour
     differs from the median colour of their face over all its views by more than ``threshold`` (RGB distance)
     and by more than 3 times the face's median distance, for faces that at least ``min_views`` views see. Such
@@ -266,18 +266,16 @@ def photo_outliers(face: np.ndarray, view: np.ndarray, colors: np.ndarray, n_fac
     starts = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])
     counts = np.diff(np.r_[starts, len(f)])
     c = colors[order].astype(np.float32)
-    med = np.empty_like(c)
-    # medians per face, grouped by the number of views (one vectorised median per group size)
-    for n in np.unique(counts):
-        st = starts[counts == n]
-        idx = st[:, None] + np.arange(n)[None]
-        med[idx.reshape(-1)] = np.repeat(np.median(c[idx], axis=1), n, axis=0)
-    d = np.linalg.norm(c - med, axis=1)
-    dmed = np.empty_like(d)
-    for n in np.unique(counts):
-        st = starts[counts == n]
-        idx = st[:, None] + np.arange(n)[None]
-        dmed[idx.reshape(-1)] = np.repeat(np.median(d[idx], axis=1), n)
+
+    def group_median(x):  # per face (a run of ``order``), one vectorised median per run length
+        out_ = np.empty_like(x)
+        for n in np.unique(counts):
+            idx = (starts[counts == n][:, None] + np.arange(n)[None]).reshape(-1)
+            out_[idx] = np.repeat(np.median(x[idx].reshape(-1, n, *x.shape[1:]), axis=1), n, axis=0)
+        return out_
+
+    d = np.linalg.norm(c - group_median(c), axis=1)
+    dmed = group_median(d)
     bad = (d > threshold) & (d > 3 * dmed) & (np.repeat(counts, counts) >= min_views)
     out[order] = bad
     return out
@@ -460,7 +458,7 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
     dropped = 0
     if cfg.consistency > 0:
         f, v, c = samples
-        bad = photo_outliers(f, v, c / gains[v], len(mesh.faces), cfg.consistency)
+        bad = photo_outliers(f, v, c / gains[v], cfg.consistency)
         q[f[bad], v[bad]] = 0
         dropped = int(bad.sum())
         log.info("texture: photo-consistency dropped %d of %d (face, view) pairs", dropped, len(f))
