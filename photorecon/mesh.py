@@ -192,7 +192,7 @@ def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
     """Quadric error decimation to about ``target_faces`` triangles, vertex colours carried.
 
     MeshLab's quadric edge collapse (pymeshlab) where installed: optimal vertex placement, collapses that would
-    flip a face's normal or leave a needle triangle refused, mesh borders kept; it keeps sharp edges and thin
+    flip a face's normal or leave a needle triangle refused; it keeps sharp edges and thin
     walls where Open3D's decimation (the fallback) folds them. Texturing the room scene's fused mesh at 30,000
     faces (tools/bench_texture.py): 27.5 dB against 26.9 dB with Open3D's decimation."""
     if target_faces < 4:

@@ -8,12 +8,15 @@ The steps (``texture_mesh``):
    centre to the centroid hits nothing before it (a depth test against the mesh itself, Open3D
    ``RaycastingScene``). The quality of a (face, view) pair is the face's projected area in pixels: it grows
    with image resolution, falls with distance and with the viewing angle, all in one number.
-2. **One view per face** (``select_views``): the best view, then a few rounds of label smoothing over the
+2. **Exposure** (``estimate_gains``): per-view, per-channel gains from the faces that several views see,
+   least squares in log space (``log colour = log gain[view] + log albedo[face]``, geometric mean gain 1).
+3. **Photo-consistency** (``photo_outliers``): a view whose (gain-corrected) colour of a face is far from the
+   median over the face's views is not used for it: it shows something other than the face there (MVS-Texturing's
+   outlier test, Waechter et al. 2014). Colours for 2 and 3 come from one pass (``sample_face_colors``).
+4. **One view per face** (``select_views``): the best view, then a few rounds of label smoothing over the
    face adjacency (a Potts term: a face takes its neighbours' view unless its own is clearly better), so the
    texture changes source at few seams.
-3. **Exposure** (``estimate_gains``): per-view, per-channel gains from the faces that several views see,
-   least squares in log space (``log colour = log gain[view] + log albedo[face]``, geometric mean gain 1).
-4. **Charts and atlas**: connected faces with the same view form a chart whose UVs are the faces' projections
+5. **Charts and atlas**: connected faces with the same view form a chart whose UVs are the faces' projections
    into that view's image (no distortion, texel density = the photo's, as in Waechter et al., ECCV 2014);
    overlapping charts of one view are merged, and the charts' rectangles are shelf-packed into a square
    atlas at the largest common scale (<= 1 texel per photo pixel) that fits. Baking copies each rectangle
