@@ -865,12 +865,11 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
                  len(patch_faces), len(sp))
     c2 = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     c2.normals = o3d.utility.Vector3dVector(nrm)
-    if cloud.has_colors():  # patch points take the colour of their nearest observed point
+    if cloud.has_colors():
         cols = np.asarray(cloud.colors)
         extra = len(pts) - len(cols)
         if extra:
-            _, j = cKDTree(np.asarray(cloud.points)).query(pts[-extra:])
-            cols = np.vstack([cols, cols[j]])
+            cols = np.vstack([cols, _patch_colors(open_mesh, patch, cloud, sp, fi)])
         c2.colors = o3d.utility.Vector3dVector(cols)
     mesh, _ = _poisson(c2, depth)
     out = _largest_component(from_open3d(mesh))
@@ -879,6 +878,33 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
         m.remove_non_manifold_edges()
         out = fill_holes(from_open3d(m), diag)
     return out
+
+
+def _patch_colors(open_mesh: trimesh.Trimesh, patch: trimesh.Trimesh, cloud, points: np.ndarray,
+                  face_index: np.ndarray) -> np.ndarray:
+    """Colours (N, 3) in [0, 1] of ``points`` sampled on the hole patches (faces ``face_index`` of ``patch``):
+    the rim's colours diffused harmonically over the patch (``mesh.harmonic_fill``), so an invented area
+    blends the colours around it instead of copying the nearest observed point's (a blotchy, flat-looking
+    patch). The rim's colours: the surface's vertex colours, else those of the nearest observed points."""
+    from scipy.spatial import cKDTree
+
+    from .mesh import harmonic_fill
+
+    PV, PF = np.asarray(patch.vertices), np.asarray(patch.faces)
+    # the patch's vertices that lie on the surface (the rim, and any surface vertex the filler reused)
+    d, j = cKDTree(np.asarray(open_mesh.vertices)).query(PV, k=1)
+    on_rim = d <= 1e-9 * max(1.0, float(np.abs(PV).max()))
+    if open_mesh.visual.kind == "vertex" and len(open_mesh.visual.vertex_colors) == len(open_mesh.vertices):
+        rim_col = np.asarray(open_mesh.visual.vertex_colors)[j[on_rim], :3] / 255.0
+    else:
+        _, k = cKDTree(np.asarray(cloud.points)).query(PV[on_rim])
+        rim_col = np.asarray(cloud.colors)[k]
+    if not on_rim.any():  # no rim found (should not happen): nearest observed colour
+        _, k = cKDTree(np.asarray(cloud.points)).query(points)
+        return np.asarray(cloud.colors)[k]
+    vc = harmonic_fill(len(PV), patch.edges_unique, np.flatnonzero(on_rim), rim_col)
+    bary = trimesh.triangles.points_to_barycentric(PV[PF[face_index]], points)
+    return np.clip(np.einsum("nk,nkc->nc", bary, vc[PF[face_index]]), 0.0, 1.0)
 
 
 def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: np.ndarray, cell: float) -> trimesh.Trimesh:

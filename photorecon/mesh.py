@@ -189,10 +189,80 @@ def boundary_edges(mesh: trimesh.Trimesh) -> int:
 
 
 def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
-    """Quadric error decimation (Open3D) to about ``target_faces`` triangles."""
+    """Quadric error decimation to about ``target_faces`` triangles, vertex colours carried.
+
+    MeshLab's quadric edge collapse (pymeshlab) where installed: optimal vertex placement, collapses that would
+    flip a face's normal or leave a needle triangle refused; it keeps sharp edges and thin
+    walls where Open3D's decimation (the fallback) folds them. Texturing the room scene's fused mesh at 30,000
+    faces (tools/bench_texture.py): 27.5 dB against 26.9 dB with Open3D's decimation."""
     if target_faces < 4:
         raise BadArgumentError(f"target faces: expected >= 4, got {target_faces}")
-    return from_open3d(to_open3d(mesh).simplify_quadric_decimation(int(target_faces)))
+    try:
+        import pymeshlab
+    except ImportError:  # pragma: no cover - pymeshlab is a dependency; Open3D as the fallback
+        return from_open3d(to_open3d(mesh).simplify_quadric_decimation(int(target_faces)))
+    V = np.asarray(mesh.vertices, np.float64)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(mesh.faces, np.int32)))
+    # every parameter given: pymeshlab keeps a filter's parameters from one call to the next within a process. Not
+    # preserveboundary: with it, a fused mesh with many small holes came out torn (F-score 0.11 vs 0.999 without)
+    ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(target_faces), qualitythr=0.3, preserveboundary=False,
+                                                boundaryweight=1.0, preservetopology=False, planarquadric=False,
+                                                planarweight=0.001, qualityweight=False, selected=False, targetperc=0.0,
+                                                preservenormal=True, optimalplacement=True, autoclean=True)
+    out = ms.current_mesh()
+    V2 = out.vertex_matrix()
+    colors = _vertex_colors(mesh)
+    vc = None
+    if colors is not None and len(colors) == len(V) and len(V2):
+        # each new vertex: the mean colour of the old vertices nearest to it (the area it stands for), as
+        # Open3D's decimation averages the colours of the vertices it merges
+        from scipy.spatial import cKDTree
+
+        _, j = cKDTree(V2).query(V, k=1)
+        n = np.bincount(j, minlength=len(V2))
+        acc = np.stack([np.bincount(j, np.asarray(colors, np.float64)[:, c], minlength=len(V2)) for c in range(3)], 1)
+        # a vertex no old one is nearest to (rare): its nearest old vertex's colour
+        _, k = cKDTree(V).query(V2[n == 0], k=1)
+        acc[n == 0] = np.asarray(colors, np.float64)[k, :3]
+        vc = np.clip(acc / np.maximum(n, 1)[:, None] + 0.5, 0, 255).astype(np.uint8)
+    return trimesh.Trimesh(V2, out.face_matrix(), vertex_colors=vc, process=False)
+
+
+def harmonic_fill(n_vertices: int, edges: np.ndarray, known: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Values (n_vertices, C) on a graph's nodes (a mesh's vertices, or its faces with ``face_adjacency``):
+    ``values`` (k, C) at the nodes ``known`` (k,) kept, the others the solution of the (uniform-weight) Laplace
+    equation over ``edges`` (E, 2): each unknown node is the mean of its neighbours, so values diffuse
+    smoothly from the known ones (a hole patch's colour blends its rim's instead of copying the nearest rim
+    point's). Unknown nodes not connected to a known one get the known values' mean (0 without any)."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.linalg import spsolve
+
+    values = np.asarray(values, np.float64).reshape(len(known), -1)
+    out = np.empty((n_vertices, values.shape[1]))
+    out[:] = values.mean(0) if len(values) else 0.0
+    out[known] = values
+    e = np.asarray(edges, np.int64).reshape(-1, 2)
+    is_known = np.zeros(n_vertices, bool)
+    is_known[known] = True
+    if is_known.all() or not len(e) or not len(known):
+        return out
+    e = np.vstack([e, e[:, ::-1]])
+    A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
+    A.data[:] = 1.0
+    # only unknown vertices in a component with a known one are solvable
+    _, comp = connected_components(A, directed=False)
+    reach = np.isin(comp, np.unique(comp[is_known]))
+    free = np.flatnonzero(~is_known & reach)
+    if not len(free):
+        return out
+    L = (sparse.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    fixed = np.flatnonzero(is_known)
+    rhs = -(L[free][:, fixed] @ out[fixed])
+    sol = spsolve(L[free][:, free].tocsc(), rhs)
+    out[free] = np.asarray(sol).reshape(len(free), -1)
+    return out
 
 
 def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:

@@ -265,6 +265,32 @@ def mesh_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, tau: float | None
                        int((~keep).sum()))
 
 
+def seen_split_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, observed: np.ndarray, radius: float,
+                       tau: float | None = None, n_samples: int = 100_000, seed: int = 0) -> dict:
+    """Precision, recall and F-score at ``tau`` (default 1% of the truth's diagonal) split by what the cameras
+    saw: ``observed`` (N, 3) are the depth maps' points; a sample of either surface within ``radius`` of one is
+    *seen*, else *unseen*. Returns ``seen`` (precision of the result's seen part, recall of the truth's seen
+    part, their F-score: how well the observed surface is reconstructed) and ``unseen`` (the same for the
+    parts no camera saw: how good the guess is), each with the ``share`` of the area it covers."""
+    from scipy.spatial import cKDTree
+
+    diag = float(np.linalg.norm(gt.bounds[1] - gt.bounds[0]))
+    tau = check_taus(0.01 * diag if tau is None else tau)[0]
+    pr, _ = sample_surface(result, n_samples, seed)
+    pg, _ = sample_surface(gt, n_samples, seed + 1)
+    d_acc, _ = _Distance(gt).query(pr)
+    d_comp, _ = _Distance(result).query(pg)
+    tree = cKDTree(np.asarray(observed, np.float64))
+    seen_r = np.isfinite(tree.query(pr, k=1, distance_upper_bound=radius)[0])
+    seen_g = np.isfinite(tree.query(pg, k=1, distance_upper_bound=radius)[0])
+    out = {"tau": tau, "radius": float(radius)}
+    for key, mr, mg in (("seen", seen_r, seen_g), ("unseen", ~seen_r, ~seen_g)):
+        s = _scores(d_acc[mr], d_comp[mg], [tau])[0]
+        out[key] = {"precision": s.precision, "recall": s.recall, "fscore": s.fscore,
+                    "share_result": float(mr.mean()), "share_truth": float(mg.mean())}
+    return out
+
+
 def icp_refine(result, gt, max_dist: float):
     """Rigidly align ``result`` to ``gt`` with point-to-plane ICP (Open3D) on surface samples. Either may be
     a triangle mesh or (N, 3) points (a point target gets normals estimated from 20 neighbours); returns

@@ -8,18 +8,21 @@ The steps (``texture_mesh``):
    centre to the centroid hits nothing before it (a depth test against the mesh itself, Open3D
    ``RaycastingScene``). The quality of a (face, view) pair is the face's projected area in pixels: it grows
    with image resolution, falls with distance and with the viewing angle, all in one number.
-2. **One view per face** (``select_views``): the best view, then a few rounds of label smoothing over the
+2. **Exposure** (``estimate_gains``): per-view, per-channel gains from the faces that several views see,
+   least squares in log space (``log colour = log gain[view] + log albedo[face]``, geometric mean gain 1).
+3. **Photo-consistency** (``photo_outliers``): a view whose (gain-corrected) colour of a face is far from the
+   median over the face's views is not used for it: it shows something other than the face there (MVS-Texturing's
+   outlier test, Waechter et al. 2014). Colours for 2 and 3 come from one pass (``sample_face_colors``).
+4. **One view per face** (``select_views``): the best view, then a few rounds of label smoothing over the
    face adjacency (a Potts term: a face takes its neighbours' view unless its own is clearly better), so the
    texture changes source at few seams.
-3. **Exposure** (``estimate_gains``): per-view, per-channel gains from the faces that several views see,
-   least squares in log space (``log colour = log gain[view] + log albedo[face]``, geometric mean gain 1).
-4. **Charts and atlas**: connected faces with the same view form a chart whose UVs are the faces' projections
+5. **Charts and atlas**: connected faces with the same view form a chart whose UVs are the faces' projections
    into that view's image (no distortion, texel density = the photo's, as in Waechter et al., ECCV 2014);
    overlapping charts of one view are merged, and the charts' rectangles are shelf-packed into a square
    atlas at the largest common scale (<= 1 texel per photo pixel) that fits. Baking copies each rectangle
    out of its (exposure-corrected) photo with ``padding`` texels of the photo's own pixels around it, so
    bilinear filtering at chart borders sees real image content, not black.
-   Faces no view sees get a small flat-colour cell, coloured from their seen neighbours.
+   Faces no view sees get a small flat-colour cell, its colour diffused from the seen faces around them.
 
 Outputs (``export_textured``, written atomically into one folder): ``mesh.obj`` + ``mesh.mtl`` +
 ``texture.png`` and ``mesh.glb`` with the texture embedded (PBR base colour). UVs follow the OBJ / glTF
@@ -40,6 +43,7 @@ from .cameras import View, project
 from .errors import BadArgumentError, EmptyMeshError, TextureError
 from .io.images import sample_bilinear
 from .layout import Layout
+from .mesh import harmonic_fill
 from .progress import bar
 from .resources import available_bytes
 
@@ -60,6 +64,7 @@ class TextureConfig:
     smoothness: float = field(default=0.4, metadata={"help": "label smoothing: cost of a neighbour with another view, relative to a face's best-to-worst quality range"})
     smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)"})
     exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
+    consistency: float = field(default=20.0, metadata={"help": "photo-consistency: a view whose colour of a face differs from the median over the face's views by more than this (RGB distance, 0-255) is not used for it (0 = off)"})
 
 
 @dataclass
@@ -78,6 +83,8 @@ def check_config(cfg: TextureConfig) -> None:
         raise BadArgumentError(f"--padding: expected 0 to 64 texels, got {cfg.padding}")
     if not 0 <= cfg.min_cos < 1:
         raise BadArgumentError(f"--min-cos: expected 0 <= value < 1, got {cfg.min_cos}")
+    if cfg.consistency < 0:
+        raise BadArgumentError(f"--consistency: expected 0 (off) or a colour distance > 0, got {cfg.consistency}")
     if cfg.texture_faces and cfg.texture_faces < 4:
         raise BadArgumentError(f"--texture-faces: expected 0 (keep) or >= 4, got {cfg.texture_faces}")
 
@@ -207,30 +214,74 @@ def solve_gains(face: np.ndarray, view: np.ndarray, colors: np.ndarray, n_views:
     return gains
 
 
+def sample_face_colors(images: Callable[[int], np.ndarray], views: list[View], mesh: trimesh.Trimesh,
+                       quality: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The colour of each face in ``faces`` in every view that sees it (``quality > 0``), sampled at its
+    centroid in a lightly blurred photo (so views at other resolutions agree): (face, view, colour (N, 3))."""
+    cent = np.asarray(mesh.vertices)[np.asarray(mesh.faces)[faces]].mean(1)
+    fs, vs, cs = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3), np.float32)]
+    for k, view in enumerate(bar(views, desc="texture: colours")):
+        sel = quality[faces, k] > 0
+        if not sel.any():
+            continue
+        img = cv2.GaussianBlur(images(k), (0, 0), 1.5)
+        uv, _ = project(cent[sel], view.intrinsics, view.cam_from_world)
+        fs.append(faces[sel])
+        vs.append(np.full(int(sel.sum()), k))
+        cs.append(sample_bilinear(img, uv).astype(np.float32))
+    return np.concatenate(fs), np.concatenate(vs), np.concatenate(cs)
+
+
 def estimate_gains(images: Callable[[int], np.ndarray], views: list[View], mesh: trimesh.Trimesh,
-                   quality: np.ndarray, max_faces: int = 20000, seed: int = 0) -> np.ndarray:
-    """Per-view gains (V, 3) from the colours of faces that >= 2 views see (at most ``max_faces`` of them),
-    each sampled at its centroid in a lightly blurred photo (so views at other resolutions agree)."""
+                   quality: np.ndarray, max_faces: int = 20000, seed: int = 0, samples=None) -> np.ndarray:
+    """Per-view gains (V, 3) from the colours of faces that >= 2 views see (at most ``max_faces`` of them).
+    ``samples``: (face, view, colour) from ``sample_face_colors`` (else sampled here)."""
     multi = np.flatnonzero((quality > 0).sum(1) >= 2)
     if not len(multi):
         return np.ones((len(views), 3))
     rng = np.random.default_rng(seed)
     if len(multi) > max_faces:
         multi = np.sort(rng.choice(multi, max_faces, replace=False))
-    cent = np.asarray(mesh.vertices)[np.asarray(mesh.faces)[multi]].mean(1)
-    fs, vs, cs = [], [], []
-    for k, view in enumerate(bar(views, desc="texture: exposure")):
-        sel = quality[multi, k] > 0
-        if not sel.any():
-            continue
-        img = cv2.GaussianBlur(images(k), (0, 0), 1.5)
-        uv, _ = project(cent[sel], view.intrinsics, view.cam_from_world)
-        fs.append(multi[sel])
-        vs.append(np.full(int(sel.sum()), k))
-        cs.append(sample_bilinear(img, uv))
-    if not fs:
+    if samples is None:
+        f, v, c = sample_face_colors(images, views, mesh, quality, multi)
+    else:
+        f, v, c = samples
+        keep = np.isin(f, multi)
+        f, v, c = f[keep], v[keep], c[keep]
+    if not len(f):
         return np.ones((len(views), 3))
-    return solve_gains(np.concatenate(fs), np.concatenate(vs), np.concatenate(cs), len(views))
+    return solve_gains(f, v, c.astype(np.float64), len(views))
+
+
+def photo_outliers(face: np.ndarray, view: np.ndarray, colors: np.ndarray,
+                   threshold: float = 20.0, min_views: int = 3) -> np.ndarray:
+    """(N,) bool: observations (``face``, ``view``, exposure-corrected ``colors`` (N, 3), 0-255) whose colour
+    differs from the median colour of their face over all its views by more than ``threshold`` (RGB distance)
+    and by more than 3 times the face's median distance, for faces that at least ``min_views`` views see. Such
+    a view shows something else where the mesh puts the face (an occluder the mesh lacks, background past a
+    rounded edge, a surface the decimated mesh misplaces): the photo-consistency check of MVS-Texturing
+    (Waechter et al., ECCV 2014), with the median in place of its mean shift."""
+    out = np.zeros(len(face), bool)
+    if not len(face):
+        return out
+    order = np.argsort(face, kind="stable")
+    f = face[order]
+    starts = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])
+    counts = np.diff(np.r_[starts, len(f)])
+    c = colors[order].astype(np.float32)
+
+    def group_median(x):  # per face (a run of ``order``), one vectorised median per run length
+        out_ = np.empty_like(x)
+        for n in np.unique(counts):
+            idx = (starts[counts == n][:, None] + np.arange(n)[None]).reshape(-1)
+            out_[idx] = np.repeat(np.median(x[idx].reshape(-1, n, *x.shape[1:]), axis=1), n, axis=0)
+        return out_
+
+    d = np.linalg.norm(c - group_median(c), axis=1)
+    dmed = group_median(d)
+    bad = (d > threshold) & (d > 3 * dmed) & (np.repeat(counts, counts) >= min_views)
+    out[order] = bad
+    return out
 
 
 # --- 4. charts, packing, baking -----------------------------------------------------------------------------
@@ -403,8 +454,18 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
     blind = [views[k].name for k in np.flatnonzero(per_view == 0)]
     if blind:
         log.warning("texture: %d view(s) see none of the mesh: %s", len(blind), ", ".join(blind[:10]))
+    samples = None
+    if cfg.exposure or cfg.consistency > 0:
+        samples = sample_face_colors(images, views, mesh, q, np.flatnonzero((q > 0).sum(1) >= 2))
+    gains = estimate_gains(images, views, mesh, q, samples=samples) if cfg.exposure else np.ones((len(views), 3))
+    dropped = 0
+    if cfg.consistency > 0:
+        f, v, c = samples
+        bad = photo_outliers(f, v, c / gains[v], cfg.consistency)
+        q[f[bad], v[bad]] = 0
+        dropped = int(bad.sum())
+        log.info("texture: photo-consistency dropped %d of %d (face, view) pairs", dropped, len(f))
     labels = select_views(q, adjacency, cfg.smoothness, cfg.smooth_rounds)
-    gains = estimate_gains(images, views, mesh, q) if cfg.exposure else np.ones((len(views), 3))
     charts = make_charts(mesh, views, labels, adjacency)
     unseen = np.flatnonzero(labels < 0)
     cell = 4
@@ -446,7 +507,10 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
         tex = (charts.corner_px[seen] + 0.5) * scale - 0.5 - origin[r] + pos[r]  # atlas texel coordinates
         uv_corner[seen] = tex
     if len(unseen):
-        face_color[unseen] = _propagate_colors(face_color, adjacency)[unseen]
+        # the seen faces' colours diffused over the face adjacency (harmonic: an unseen area blends the colours
+        # around it); grey where a component has no seen face
+        known = np.flatnonzero(~np.isnan(face_color[:, 0]))
+        face_color[unseen] = harmonic_fill(len(F), adjacency, known, face_color[known])[unseen] if len(known) else 128.0
         ex, ey = pos[-1]
         i = np.arange(len(unseen))
         cx, cy = ex + (i % n_cols) * cell + cell / 2 - 0.5, ey + (i // n_cols) * cell + cell / 2 - 0.5
@@ -472,32 +536,10 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
                           process=False)
     info = {"faces": int(len(mesh.faces)), "faces_in": int(faces_in), "vertices": int(len(new_vertices)),
             "views_used": int(len(np.unique(labels[labels >= 0]))), "views_blind": blind,
-            "unseen_faces": int(len(unseen)), "charts": int(len(charts.rect_box)), "atlas_size": N,
+            "unseen_faces": int(len(unseen)), "inconsistent_views_dropped": dropped, "charts": int(len(charts.rect_box)), "atlas_size": N,
             "texels_per_pixel": round(float(scale), 4),
             "gains": {views[k].name: [round(float(x), 4) for x in gains[k]] for k in range(len(views))}}
     return Textured(out, atlas, labels, gains, info)
-
-
-def _propagate_colors(color: np.ndarray, adjacency: np.ndarray, max_rounds: int = 10000) -> np.ndarray:
-    """Fill NaN rows of ``color`` (F, 3) with the mean of their known neighbours, ring by ring; grey where a
-    component has no known face."""
-    color = color.copy()
-    known = ~np.isnan(color[:, 0])
-    a, b = adjacency.T if len(adjacency) else (np.zeros(0, int), np.zeros(0, int))
-    x, y = np.r_[a, b], np.r_[b, a]
-    for _ in range(max_rounds):
-        if known.all():
-            break
-        m = known[y] & ~known[x]
-        if not m.any():
-            break
-        cnt = np.bincount(x[m], minlength=len(color))
-        acc = np.stack([np.bincount(x[m], color[y[m], c], minlength=len(color)) for c in range(3)], 1)
-        new = (cnt > 0) & ~known
-        color[new] = acc[new] / cnt[new, None]
-        known |= new
-    color[~known] = 128.0
-    return color
 
 
 # --- export ---------------------------------------------------------------------------------------------------

@@ -140,3 +140,26 @@ def test_cli_eval_bad_reference(tmp_path, sphere, capsys):
     with pytest.raises(SystemExit) as e:
         main(["eval", "--mesh", str(mesh), "--gt", str(empty), "--tau", "0.01,-2"])
     assert e.value.code == 2
+
+
+def test_seen_split_scores_the_observed_part_and_the_guess_apart():
+    """Truth: a unit sphere; the result: the same sphere with its bottom (z < -0.5) flattened into a plane, as a
+    closed surface guesses a base no camera saw; observed: points of the sphere's top (z > -0.4). The seen part
+    scores F = 1, the unseen part (the flat cap vs the round bottom, up to 0.5 apart) far less, and the shares
+    follow the areas."""
+    import trimesh
+
+    from photorecon.metrics import seen_split_metrics
+
+    gt = trimesh.creation.icosphere(5)
+    res = gt.copy()
+    v = np.asarray(res.vertices).copy()
+    v[v[:, 2] < -0.5, 2] = -0.5
+    res = trimesh.Trimesh(v, res.faces, process=False)
+    pts, _ = trimesh.sample.sample_surface(gt, 200_000, seed=3)
+    observed = pts[pts[:, 2] > -0.4]
+    s = seen_split_metrics(res, gt, observed, radius=0.03, n_samples=50_000)
+    assert s["seen"]["fscore"] > 0.99 and s["seen"]["precision"] > 0.99, s
+    assert s["unseen"]["fscore"] < 0.6, s
+    # the truth's unseen area: the cap below z = -0.4 (minus the radius band), 0.3 of the sphere by Archimedes
+    assert abs(s["unseen"]["share_truth"] - (1 - 0.4 - 0.03) / 2) < 0.03, s

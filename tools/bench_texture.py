@@ -13,7 +13,12 @@ to separate texture from geometry error. Target: textured >= vertex-coloured + 3
 Time: texturing 30 views of 640x480 and a 300k-face mesh (the blob's fused mesh decimated), end to end
 (visibility, view selection, exposure, charts, baking, export of OBJ/MTL/PNG + GLB). Target <= 30 s on 2 cores.
 
+Where the error lies: each fidelity row also splits the squared error by region (``error_regions``: near
+occlusion boundaries, where the geometry is off, the rest) and ``--error-maps DIR`` writes the renders and their
+error images.
+
     python tools/bench_texture.py [--views 30] [--faces 30000] [--json out.json] [--only fidelity|time]
+                                  [--scenes blob,room,bunny] [--error-maps DIR]
 """
 from __future__ import annotations
 
@@ -42,6 +47,42 @@ from photorecon.texture import TextureConfig, export_textured, texture_mesh
 def psnr(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
     err = (pred[mask].astype(np.float64) - truth[mask].astype(np.float64)) ** 2
     return float(10 * np.log10(255.0 ** 2 / max(err.mean(), 1e-12)))
+
+
+def error_regions(truth, textured, vertex) -> dict:
+    """Where the squared error of one held-out render lies: ``edge`` (within 2 px of the truth's occlusion
+    boundaries and silhouette), ``geometry`` (elsewhere, where the mesh's depth is > 0.5% off the truth's or the
+    mesh is missing) and ``rest``. Per region: pixel count and summed squared error (mean over RGB) of the
+    textured and the vertex-coloured render."""
+    import cv2
+
+    m, d = truth.mask, truth.depth
+    jump = 0.02 * float(np.median(d[m])) if m.any() else 0.0
+    edge = np.zeros_like(m)
+    gy, gx = np.abs(np.diff(d, axis=0)) > jump, np.abs(np.diff(d, axis=1)) > jump
+    edge[:-1] |= gy
+    edge[1:] |= gy
+    edge[:, :-1] |= gx
+    edge[:, 1:] |= gx
+    edge |= m != cv2.erode(m.astype(np.uint8), np.ones((3, 3))).astype(bool)
+    edge = cv2.dilate(edge.astype(np.uint8), np.ones((5, 5))).astype(bool) & m
+    with np.errstate(invalid="ignore", divide="ignore"):
+        off = (np.abs(vertex.depth - d) / np.maximum(d, 1e-9) > 0.005) | ~vertex.mask
+    geo = m & ~edge & off
+    rest = m & ~edge & ~geo
+    e_t = ((textured.rgb.astype(np.float64) - truth.rgb) ** 2).mean(2)
+    e_v = ((vertex.rgb.astype(np.float64) - truth.rgb) ** 2).mean(2)
+    return {k: (int(r.sum()), float(e_t[r].sum()), float(e_v[r].sum())) for k, r in
+            (("edge", edge), ("geometry", geo), ("rest", rest))}
+
+
+def write_error_map(path: Path, truth, textured) -> None:
+    """truth | textured | |error| x 4 (grey), side by side."""
+    import cv2
+
+    err = np.abs(textured.rgb.astype(np.float64) - truth.rgb).mean(2)
+    err_img = np.repeat(np.clip(4 * err, 0, 255).astype(np.uint8)[..., None], 3, 2)
+    cv2.imwrite(str(path), np.concatenate([truth.rgb, textured.rgb, err_img], 1)[..., ::-1])
 
 
 def held_out_views(cfg: SynthConfig, n: int = 8):
@@ -87,7 +128,7 @@ def photo_vertex_colors(mesh: trimesh.Trimesh, ds: Dataset) -> trimesh.Trimesh:
     return trimesh.Trimesh(V, mesh.faces, vertex_colors=np.clip(col + 0.5, 0, 255).astype(np.uint8), process=False)
 
 
-def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int) -> list[dict]:
+def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int, maps: Path | None = None) -> list[dict]:
     """Two rows: the fused mesh (TSDF of the true depth, decimated, its own vertex colours) and the true surface
     (subdivided, vertex colours averaged from the photos), each textured too."""
     root = tmp / name
@@ -103,13 +144,30 @@ def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int) -> 
         tex = texture_dataset(mesh, ds, TextureConfig(atlas_size=atlas))
         secs = time.perf_counter() - t0
         r_tex, r_vc = Renderer(tex.mesh, unlit=True), Renderer(mesh, unlit=True)
-        p_tex = [psnr(r_tex.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]
-        p_vc = [psnr(r_vc.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]
+        renders = [(r_tex.render(v), r_vc.render(v)) for v in held]
+        p_tex = [psnr(a.rgb, t.rgb, t.mask) for (a, _), t in zip(renders, truths)]
+        p_vc = [psnr(b.rgb, t.rgb, t.mask) for (_, b), t in zip(renders, truths)]
+        regions = {}
+        for (a, b), t in zip(renders, truths):
+            for k, (n, et, ev) in error_regions(t, a, b).items():
+                acc = regions.setdefault(k, [0, 0.0, 0.0])
+                acc[0] += n
+                acc[1] += et
+                acc[2] += ev
+        total = sum(v[0] for v in regions.values())
+        if maps is not None:
+            maps.mkdir(parents=True, exist_ok=True)
+            for i, ((a, _), t) in enumerate(zip(renders, truths)):
+                write_error_map(maps / f"{name}_{geometry}_{i}.png", t, a)
         row = {"scene": name, "geometry": geometry, "views": cfg.views, "size": f"{cfg.width}x{cfg.height}",
                "faces": len(mesh.faces), "psnr_textured": float(np.mean(p_tex)), "psnr_vertex": float(np.mean(p_vc)),
                "gain_db": float(np.mean(p_tex) - np.mean(p_vc)), "texture_seconds": secs,
                "charts": tex.info["charts"], "texels_per_pixel": tex.info["texels_per_pixel"],
-               "unseen_faces": tex.info["unseen_faces"]}
+               "unseen_faces": tex.info["unseen_faces"],
+               # per region: share of the object's pixels, and the textured / vertex-coloured squared error
+               # summed there over the object's pixels (the three add up to each render's mean squared error)
+               "error_regions": {k: {"pixels": n / total, "mse_textured": et / total, "mse_vertex": ev / total}
+                                 for k, (n, et, ev) in regions.items()}}
         if geometry == "fused":
             r_full = Renderer(full, unlit=True)
             row["psnr_vertex_full"] = float(np.mean([psnr(r_full.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]))
@@ -149,6 +207,7 @@ def main() -> None:
     ap.add_argument("--only", choices=("fidelity", "time"))
     ap.add_argument("--scenes", default="blob,room,bunny")
     ap.add_argument("--json", help="write the figures to this JSON file")
+    ap.add_argument("--error-maps", help="write truth | textured | error images of the held-out views to this folder")
     args = ap.parse_args()
     progress.set_enabled(False)
     res = {"fidelity": [], "time": None}
@@ -166,13 +225,16 @@ def main() -> None:
                     cfg = SynthConfig(mesh=str(BUNNY), up="y", views=args.views)
                 else:
                     cfg = SynthConfig(scene=name, views=args.views)
-                for r in fidelity(name, cfg, args.faces, tmp, args.atlas):
+                for r in fidelity(name, cfg, args.faces, tmp, args.atlas, Path(args.error_maps) if args.error_maps else None):
                     res["fidelity"].append(r)
                     full = (f"; full fused mesh ({r['full_faces']:,} faces) with vertex colours: "
                             f"{r['psnr_vertex_full']:.2f} dB") if "full_faces" in r else ""
                     print(f"| {name} | {r['geometry']} | {r['faces']:,} | {r['psnr_vertex']:.2f} | "
                           f"{r['psnr_textured']:.2f} | **{r['gain_db']:+.2f}** | {r['texture_seconds']:.1f} | "
                           f"{r['charts']} | {r['texels_per_pixel']:.2f} |{full}", flush=True)
+                    print("  squared error by region (share of pixels: textured / vertex colours): " + "; ".join(
+                        f"{k} {v['pixels']:.1%}: {v['mse_textured']:.1f} / {v['mse_vertex']:.1f}"
+                        for k, v in r["error_regions"].items()), flush=True)
         if args.only != "fidelity":
             t = timing(args.views, args.time_faces, tmp, args.atlas)
             res["time"] = t
