@@ -199,7 +199,7 @@ def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
         raise BadArgumentError(f"target faces: expected >= 4, got {target_faces}")
     try:
         import pymeshlab
-    except ImportError:  # pragma: no cover - pymeshlab is a dependency; Open3D as the fallback
+    except ImportError:  # pymeshlab is an optional extra (GPL-3): Open3D as the fallback
         return from_open3d(to_open3d(mesh).simplify_quadric_decimation(int(target_faces)))
     V = np.asarray(mesh.vertices, np.float64)
     ms = pymeshlab.MeshSet()
