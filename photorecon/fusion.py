@@ -906,8 +906,6 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
 
     from .mesh import fill_holes, from_open3d, to_open3d
 
-    from scipy.spatial import cKDTree
-
     open_mesh = _largest_component(open_mesh)
     diag = float(np.linalg.norm(open_mesh.bounds[1] - open_mesh.bounds[0]))
     filled = fill_holes(open_mesh, diag)
