@@ -62,6 +62,8 @@ class MVSConfig:
     pm_iterations: int = field(default=5, metadata={"help": "patchmatch: iterations at the coarsest level"})
     pm_fine_iterations: int = field(default=1, metadata={"help": "patchmatch: iterations at each finer level"})
     pm_final_iterations: int = field(default=1, metadata={"help": "patchmatch: extra geometric-consistency iterations at full working resolution"})
+    pm_final_level: int = field(default=0, metadata={"help": "patchmatch: pyramid level of the extra geometric-consistency round (0 = full working resolution, after it; 1 = half, before the full-resolution round)"})
+    pm_skip_cost: float = field(default=0.0, metadata={"help": "patchmatch: in the extra geometric-consistency round, leave pixels whose cost after the previous round is below this as they are (0 = off)"})
     pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius in pixels"})
     pm_stride: int = field(default=2, metadata={"help": "patchmatch: NCC window sampled every this many pixels"})
     pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: bilateral NCC weight's grey-level sigma (grey in 0..1)"})
@@ -269,6 +271,14 @@ def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSC
     """For each depth of ``r``: how many of its ``sources`` (name -> result) confirm it (reprojection within
     ``reproj_px`` and relative depth within ``rel_depth``). Returns (counts (h, w) int32, sum and number of the
     agreeing pairs' forward-backward reprojection errors in pixels)."""
+    views = [r.view] + [sources[s].view for s in r.sources if s in sources]
+    if not any(v.intrinsics.has_distortion for v in views):
+        return _consistency_count_pinhole(r, sources, cfg)
+    return _consistency_count_any(r, sources, cfg)
+
+
+def _consistency_count_any(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
+    """``consistency_count`` for any camera model (numpy; distortion through ``cameras.project``)."""
     d = r.depth
     valid = d > 0
     cnt = np.zeros(d.shape, np.int32)
@@ -298,6 +308,28 @@ def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSC
         err_n += int(good.sum())
         cnt[valid] += agree
     return cnt, err_sum, err_n
+
+
+def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
+    """``consistency_count`` for cameras without distortion, compiled (``_pm_kernels.consistency_source``)."""
+    from . import _pm_kernels as k
+
+    d = np.ascontiguousarray(r.depth, np.float32)
+    cnt = np.zeros(d.shape, np.int32)
+    err_rows = np.zeros(d.shape[0], np.float64)
+    n_rows = np.zeros(d.shape[0], np.int64)
+    Kr = np.asarray(r.view.intrinsics.K, np.float64)
+    world_from_ref = invert_rigid(r.view.cam_from_world)
+    for sname in r.sources:
+        s = sources.get(sname)
+        if s is None:
+            continue
+        rel = s.view.cam_from_world @ world_from_ref
+        Ks = np.asarray(s.view.intrinsics.K, np.float64)
+        k.consistency_source(d, Kr, np.linalg.inv(Kr), np.ascontiguousarray(rel[:3, :3]), np.ascontiguousarray(rel[:3, 3]),
+                             Ks, np.linalg.inv(Ks), np.ascontiguousarray(s.depth, np.float32), float(cfg.reproj_px),
+                             float(cfg.rel_depth), cnt, err_rows, n_rows)
+    return cnt, float(err_rows.sum()), int(n_rows.sum())
 
 
 def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:

@@ -149,7 +149,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     init: tuple[np.ndarray, np.ndarray] | None = None, seeds: np.ndarray | None = None,
                     geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0,
                     init_cost: np.ndarray | None = None, n_refine: int = 6,
-                    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False):
+                    prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False,
+                    skip_cost: float = 0.0):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
@@ -157,7 +158,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     half-pass), else computed. ``n_refine``: refinement hypotheses per pixel (6: perturbed and random; 3:
     perturbed only). ``prior``: the previous round's (depth, normal, cost) at this resolution, for the planar
     prior (``planar.inject_prior``), else None; ``prior_after``: once more after the iterations, from their
-    result (the last round). Returns (depth, normal, cost) at ``ref``'s resolution."""
+    result (the last round). ``skip_cost``: pixels whose cost is below it are left as they are (0 = none).
+    Returns (depth, normal, cost) at ``ref``'s resolution."""
     k = _kernels()
     cfg = params.cfg
     H, W = ref_img.shape
@@ -208,7 +210,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                       params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var,
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
-                      float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), depth, normal, cost)
+                      float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), float(skip_cost),
+                      depth, normal, cost)
     if prior is not None and prior_after:
         from .planar import textureless
 
@@ -220,11 +223,16 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
 
 def pm_rounds(cfg) -> list[tuple[int, bool, int]]:
     """The rounds of multi-scale PatchMatch, coarse to fine: (pyramid level, geometric term, iterations); ACMM's
-    extra geometric round at full resolution last."""
+    extra geometric round at level ``pm_final_level`` (0: full resolution, last), right after that level's own."""
     levels = max(1, int(cfg.pm_levels))
+    final = cfg.geom_consistency and cfg.pm_final_iterations > 0
+    final_level = min(max(0, int(cfg.pm_final_level)), levels - 2) if levels > 1 else 0
     rounds = [(levels - 1, False, cfg.pm_iterations)]
-    rounds += [(lvl, cfg.geom_consistency, cfg.pm_fine_iterations) for lvl in reversed(range(levels - 1))]
-    if cfg.geom_consistency and cfg.pm_final_iterations > 0:
+    for lvl in reversed(range(levels - 1)):
+        rounds.append((lvl, cfg.geom_consistency, cfg.pm_fine_iterations))
+        if final and lvl == final_level:
+            rounds.append((lvl, True, cfg.pm_final_iterations))
+    if final and levels == 1:
         rounds.append((0, True, cfg.pm_final_iterations))
     return rounds
 
@@ -283,7 +291,8 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     depth, normal, cost = patchmatch_view(
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
-        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1)
+        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
+        skip_cost=cfg.pm_skip_cost if not first and rounds[r - 1][0] == lvl else 0.0)
     return depth, normal, cost, ref
 
 
