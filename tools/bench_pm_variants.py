@@ -55,16 +55,24 @@ def main() -> int:
     ap.add_argument("variants", nargs="+")
     ap.add_argument("--size", default="1600x1067")
     ap.add_argument("--views", type=int, default=9)
+    ap.add_argument("--scene", default="blob", help="blob (ring rig, the speed scene), or room / knot (sphere rig, as "
+                    "tools/bench_mvs.py's accuracy section: --scene room --views 30 --size 512x384)")
+    ap.add_argument("--no-masks", action="store_true", help="ignore the scene's masks (every pixel computed and kept)")
     ap.add_argument("--reps", type=int, default=1)
     ap.add_argument("--json")
     args = ap.parse_args()
     progress.set_enabled(False)
     W, H = (int(s) for s in args.size.split("x"))
-    root = Path(tempfile.gettempdir()) / f"pm_variants_{W}x{H}_{args.views}"
+    root = Path(tempfile.gettempdir()) / f"pm_variants_{args.scene}_{W}x{H}_{args.views}"
     if not (root / "scene.json").is_file():
-        synthesize(SynthConfig(scene="blob", rig="ring", views=args.views, width=W, height=H, elevation=15, points=4000),
-                   root, overwrite=True)
+        sc = (SynthConfig(scene="blob", rig="ring", views=args.views, width=W, height=H, elevation=15, points=4000)
+              if args.scene == "blob" else
+              SynthConfig(scene=args.scene, views=args.views, width=W, height=H, points=3000))
+        synthesize(sc, root, overwrite=True)
     ds = Dataset.open(root)
+    if args.no_masks:
+        ds.masks_dir = root / "no_masks"  # an empty folder: no view has a mask
+        assert ds.mask(ds.views[0]) is None
     n = len(ds.views)
     warm = warm_up()
     print(f"numba warm-up (compile, or load from the cache): {warm:.1f} s", flush=True)
@@ -85,7 +93,7 @@ def main() -> int:
                 if args.json:
                     Path(args.json).write_text(json.dumps({"warm_up_s": warm, "size": [W, H], "rows": rows}, indent=1))
     base = {r["rep"]: r["cpu_s_per_view"] for r in rows if r["variant"] == cfgs[0][0]}
-    print(f"\n{n} views {W}x{H}, 8 sources; ratio = CPU s against the first variant of the same rep")
+    print(f"\n{args.scene}, {n} views {W}x{H}{', masks ignored' if args.no_masks else ''}; ratio = CPU s against the first variant of the same rep")
     print("| variant | CPU s/view | wall s/view | ratio | within 1% | coverage |\n|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['variant']} | {r['cpu_s_per_view']:.1f} | {r['wall_s_per_view']:.1f} | "

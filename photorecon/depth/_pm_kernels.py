@@ -303,11 +303,12 @@ def _facing(n0, n1, n2, r0, r1, r2):
 @njit(parallel=True, cache=True)
 def init_random(depth, normal, Kinv, dmin, dmax, seed, only_invalid):
     """Random hypotheses (depth uniform in inverse depth over [dmin, dmax], normal uniform on the hemisphere
-    facing the camera) for every pixel, or for those with depth <= 0 when ``only_invalid``."""
+    facing the camera) for every pixel, or for those with depth 0 when ``only_invalid`` (a negative depth marks a
+    pixel outside the mask: left alone)."""
     H, W = depth.shape
     for y in prange(H):
         for x in range(W):
-            if only_invalid and depth[y, x] > 0:
+            if only_invalid and depth[y, x] != 0:
                 continue
             s = _seed(seed, 7777, y, x)
             s, u = _rand(s)
@@ -420,7 +421,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
 
     Candidates within ``same_depth`` (relative) and whose normals' cosine exceeds ``same_cos`` of an earlier
     candidate share its costs (neighbours of a converged surface propagate nearly the same plane). Pixels whose
-    cost is below ``skip_below`` are left as they are (converged; 0 = none).
+    cost is below ``skip_below`` are left as they are (converged; 0 = none), and so are pixels of negative depth
+    (outside the view's mask: never computed, never a candidate).
     """
     H, W = ref.shape
     S = srcs.shape[0]
@@ -444,7 +446,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
         bestj = np.empty(S, np.float64)
         gq = np.empty((S, 3), np.float64)
         for x in range((y + color) % 2, W, 2):
-            if cost[y, x] < skip_below:
+            if cost[y, x] < skip_below or depth[y, x] < 0:  # converged, or outside the mask
                 continue
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]

@@ -401,6 +401,28 @@ def _working_grey(ctx: _MVSContext, name: str) -> np.ndarray:
     return g
 
 
+_MASK_CACHE: dict[tuple, np.ndarray | None] = {}  # per process: the last few views' masks at working resolution
+
+
+def _level_mask(ctx: _MVSContext, name: str, lv: View) -> np.ndarray | None:
+    """View ``name``'s mask (True = foreground) at ``lv``'s resolution, or None without one: PatchMatch computes
+    only these pixels. A pixel of a coarser level is foreground when any of its working-resolution pixels is."""
+    v = _dataset_view(ctx, name)
+    wv = ctx.plan[name][0] if name in ctx.plan else _working_view(v, ctx.cfg.max_size)
+    key = (str(ctx.dataset.image_path(v)), str(ctx.dataset.mask_path(v)), wv.intrinsics.size)
+    if key not in _MASK_CACHE:
+        m = ctx.dataset.mask(v)
+        if m is not None and m.shape != (wv.intrinsics.height, wv.intrinsics.width):
+            m = cv2.resize(m.astype(np.uint8), wv.intrinsics.size, interpolation=cv2.INTER_NEAREST) > 0
+        while len(_MASK_CACHE) >= 12:
+            _MASK_CACHE.pop(next(iter(_MASK_CACHE)))
+        _MASK_CACHE[key] = m
+    m = _MASK_CACHE[key]
+    if m is None or m.shape == (lv.intrinsics.height, lv.intrinsics.width):
+        return m
+    return cv2.resize(m.astype(np.float32), lv.intrinsics.size, interpolation=cv2.INTER_AREA) > 0
+
+
 def _level_image(ctx: _MVSContext, name: str, lv: View) -> np.ndarray:
     g = _working_grey(ctx, name)
     if g.shape != (lv.intrinsics.height, lv.intrinsics.width):
@@ -480,7 +502,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             return _load(ctx.work / f"r{rr}" / f"{n}.{what}.npy")
 
         depth, normal, cost, _ = pm_view_round(jobs[name], r, jobs, lambda n, lv: _level_image(ctx, n, lv),
-                                               PatchMatchParams(cfg), load)
+                                               PatchMatchParams(cfg), load, lambda n, lv: _level_mask(ctx, n, lv))
         seconds = time.perf_counter() - t0
         if last:
             _finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
@@ -632,6 +654,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method})")
     t_graph = time.perf_counter() - t_graph
     _GREY_CACHE.clear()
+    _MASK_CACHE.clear()
     t_all = time.perf_counter() - t0
     task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
     consistency: dict = {}

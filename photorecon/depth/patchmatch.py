@@ -150,7 +150,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0,
                     init_cost: np.ndarray | None = None, n_refine: int = 6,
                     prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False,
-                    skip_cost: float = 0.0):
+                    skip_cost: float = 0.0, active: np.ndarray | None = None):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
@@ -159,6 +159,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     perturbed only). ``prior``: the previous round's (depth, normal, cost) at this resolution, for the planar
     prior (``planar.inject_prior``), else None; ``prior_after``: once more after the iterations, from their
     result (the last round). ``skip_cost``: pixels whose cost is below it are left as they are (0 = none).
+    ``active``: (H, W) bool, the pixels to compute (the view's mask), else all; the others get depth 0.
     Returns (depth, normal, cost) at ``ref``'s resolution."""
     k = _kernels()
     cfg = params.cfg
@@ -170,6 +171,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
             seed_planes(depth, normal, ref, seeds, dmin, dmax)
     else:
         depth, normal = np.ascontiguousarray(init[0], np.float32), np.ascontiguousarray(init[1], np.float32)
+    if active is not None:
+        depth[~active] = -1.0  # never computed, never propagated
     g = _Geometry(ref, sources)
     k.init_random(depth, normal, g.Kinv, float(dmin), float(dmax), int(seed), True)
     ref_img = np.ascontiguousarray(ref_img, np.float32)
@@ -202,6 +205,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
 
         st = inject_prior(depth, normal, cost, prior, g.Kinv, dmin, dmax, cost_of)
         log.debug("planar prior: %s", st)
+    if active is not None:
+        depth[~active] = -1.0
     for it in range(iterations):
         tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
         pert = max(0.02 * 0.5 ** it, 0.002)
@@ -218,6 +223,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         st = inject_prior(depth, normal, cost, (depth.copy(), normal.copy(), cost.copy()), g.Kinv, dmin, dmax, cost_of,
                           flat=textureless(ref_img, cfg.pm_radius))
         log.debug("planar prior, after the last iteration: %s", st)
+    if active is not None:
+        depth[depth < 0] = 0.0
     return depth, normal, cost
 
 
@@ -254,11 +261,13 @@ def round_dependencies(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> li
 
 
 def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable[[str, View], np.ndarray],
-                  params: PatchMatchParams, load: Callable[[str, int, str], np.ndarray]):
+                  params: PatchMatchParams, load: Callable[[str, int, str], np.ndarray],
+                  mask: Callable[[str, View], np.ndarray | None] | None = None):
     """Round ``r`` (of ``pm_rounds``) of PatchMatch for one reference view. ``image(name, view)``: the grey
     float32 image of view ``name`` at ``view``'s resolution; ``load(name, round, what)``: the ``"depth"``,
     ``"normal"`` or ``"cost"`` map of a view after an earlier round (``round_dependencies`` says which are
-    read). Returns (depth, normal, cost, view at this round's resolution)."""
+    read). ``mask(name, view)``: the view's foreground at ``view``'s resolution, or None: pixels outside it are not
+    computed (their depth would be dropped anyway). Returns (depth, normal, cost, view at this round's resolution)."""
     cfg = params.cfg
     rounds = pm_rounds(cfg)
     lvl, geometric, iters = rounds[r]
@@ -292,7 +301,8 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
         init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
-        skip_cost=cfg.pm_skip_cost if not first and rounds[r - 1][0] == lvl else 0.0)
+        skip_cost=cfg.pm_skip_cost if not first and rounds[r - 1][0] == lvl else 0.0,
+        active=mask(name, ref) if mask is not None else None)
     return depth, normal, cost, ref
 
 
