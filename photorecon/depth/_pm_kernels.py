@@ -404,7 +404,7 @@ def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo
 @njit(parallel=True, cache=True, fastmath=True)
 def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
-            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, skip_below,
+            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, skip_px, skip_n,
             depth, normal, cost):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
 
@@ -420,9 +420,10 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
        (for an upsampled, already converged surface), 6 = those and random depth, normal and both (0 = none).
 
     Candidates within ``same_depth`` (relative) and whose normals' cosine exceeds ``same_cos`` of an earlier
-    candidate share its costs (neighbours of a converged surface propagate nearly the same plane). Pixels whose
-    cost is below ``skip_below`` are left as they are (converged; 0 = none), and so are pixels of negative depth
-    (outside the view's mask: never computed, never a candidate).
+    candidate share its costs (neighbours of a converged surface propagate nearly the same plane). With the
+    geometric term and ``skip_n`` > 0, a pixel whose hypothesis at least ``skip_n`` sources' depth maps confirm
+    (forward-backward reprojection error below ``skip_px``) is left as it is (converged), and so are pixels of
+    negative depth (outside the view's mask: never computed, never a candidate).
     """
     H, W = ref.shape
     S = srcs.shape[0]
@@ -446,14 +447,21 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
         bestj = np.empty(S, np.float64)
         gq = np.empty((S, 3), np.float64)
         for x in range((y + color) % 2, W, 2):
-            if cost[y, x] < skip_below or depth[y, x] < 0:  # converged, or outside the mask
+            if depth[y, x] < 0:  # outside the mask
                 continue
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
-            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             if use_geo:
                 _geo_rays(GP, r0, r1, r2, gq)
+                if skip_n > 0 and depth[y, x] > 0:
+                    n_ok = 0
+                    for j in range(S):
+                        if _geo(j, depth[y, x], gq, Ge, GM, Gg, sdepth, x, y, delta_geo) < skip_px:
+                            n_ok += 1
+                    if n_ok >= skip_n:  # converged: the other views' depth maps confirm it
+                        continue
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             # 1. candidates
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]

@@ -9,12 +9,14 @@ Per reference view and per pyramid level, coarse to fine:
 * **Red-black checkerboard propagation** (ACMH's adaptive sampling: 8 regions, best neighbour of each),
   **multi-hypothesis joint view selection** per pixel, and **refinement** by perturbed and random depths
   and normals (``_pm_kernels.pm_pass``).
-* **Matching cost**: 1 - NCC, bilaterally weighted, over a strided window (``radius`` 5, ``stride`` 2: an
-  11x11 window sampled every 2 pixels).
+* **Matching cost**: 1 - NCC, bilaterally weighted, over a strided window (``radius`` 4, ``stride`` 2: a
+  9x9 window sampled every 2 pixels, 25 samples).
 * **Geometric consistency** (ACMM): at every level but the coarsest, the cost adds ``geom_weight`` x the
   forward-backward reprojection error (pixels, capped) through each source's depth map of the previous
   level, which pulls views together and fills weakly textured areas from their coarse estimates; a final
-  round at full resolution uses the full-resolution depth maps of the other views.
+  round at full resolution uses the full-resolution depth maps of the other views, and leaves the pixels that
+  ``pm_skip_consistent`` of them already confirm as they are.
+* **Masks**: pixels outside a view's mask are never computed (their depth would be dropped anyway).
 
 Results are ``DepthResult``s at working resolution with a per-pixel normal; the caller (``mvs.run_mvs``)
 filters them (confidence, geometric consistency between views) and writes them.
@@ -150,7 +152,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0,
                     init_cost: np.ndarray | None = None, n_refine: int = 6,
                     prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False,
-                    skip_cost: float = 0.0, active: np.ndarray | None = None):
+                    skip_consistent: int = 0, active: np.ndarray | None = None):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
@@ -158,7 +160,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     half-pass), else computed. ``n_refine``: refinement hypotheses per pixel (6: perturbed and random; 3:
     perturbed only). ``prior``: the previous round's (depth, normal, cost) at this resolution, for the planar
     prior (``planar.inject_prior``), else None; ``prior_after``: once more after the iterations, from their
-    result (the last round). ``skip_cost``: pixels whose cost is below it are left as they are (0 = none).
+    result (the last round). ``skip_consistent``: with ``geo``, pixels whose hypothesis at least this many sources'
+    depth maps confirm within 1 pixel (forward-backward) are left as they are (0 = none).
     ``active``: (H, W) bool, the pixels to compute (the view's mask), else all; the others get depth 0.
     Returns (depth, normal, cost) at ``ref``'s resolution."""
     k = _kernels()
@@ -215,7 +218,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                       params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var,
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
-                      float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), float(skip_cost),
+                      float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), 1.0, int(skip_consistent),
                       depth, normal, cost)
     if prior is not None and prior_after:
         from .planar import textureless
@@ -301,7 +304,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params, iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
         init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
-        skip_cost=cfg.pm_skip_cost if not first and rounds[r - 1][0] == lvl else 0.0,
+        skip_consistent=cfg.pm_skip_consistent if not first and rounds[r - 1][0] == lvl else 0,
         active=mask(name, ref) if mask is not None else None)
     return depth, normal, cost, ref
 
