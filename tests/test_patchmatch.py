@@ -171,3 +171,15 @@ def test_views_without_sources_are_skipped_with_a_reason(blob_small, tmp_path):
     with pytest.raises(NoDepthError, match=f"{ds.views[0].name}: no source view"):
         run_mvs(single, tmp_path / "d", MVSConfig(**FAST))
     assert not list((tmp_path / "d").glob("*.npy"))
+
+
+def test_extra_geometric_round_at_the_chosen_level():
+    """ACMM's extra geometric round runs right after its level's own round: last at full resolution by default,
+    before the full-resolution round with --pm-final-level 1 (so one full-resolution round instead of two)."""
+    from photorecon.depth.patchmatch import pm_rounds
+
+    assert pm_rounds(MVSConfig()) == [(2, False, 5), (1, True, 1), (0, True, 1), (0, True, 1)]
+    assert pm_rounds(MVSConfig(pm_final_level=1)) == [(2, False, 5), (1, True, 1), (1, True, 1), (0, True, 1)]
+    assert pm_rounds(MVSConfig(pm_final_level=5)) == pm_rounds(MVSConfig(pm_final_level=1))  # clamped to the pyramid
+    assert pm_rounds(MVSConfig(pm_levels=1)) == [(0, False, 5), (0, True, 1)]
+    assert pm_rounds(MVSConfig(pm_final_iterations=0)) == [(2, False, 5), (1, True, 1), (0, True, 1)]
