@@ -10,7 +10,7 @@ Per reference view and per pyramid level, coarse to fine:
   **multi-hypothesis joint view selection** per pixel, and **refinement** by perturbed and random depths
   and normals (``_pm_kernels.pm_pass``).
 * **Matching cost**: 1 - NCC, bilaterally weighted, over a strided window (``radius`` 5, ``stride`` 2: an
-  11x11 window sampled every 2 pixels; ``--pm-radius 4``: 9x9, 25 samples instead of 36, 1.25x faster).
+  11x11 window sampled every 2 pixels; ``--pm-radius 4``: 9x9, 25 samples instead of 36, 1.2x faster).
 * **Geometric consistency** (ACMM): at every level but the coarsest, the cost adds ``geom_weight`` x the
   forward-backward reprojection error (pixels, capped) through each source's depth map of the previous
   level, which pulls views together and fills weakly textured areas from their coarse estimates; a final
