@@ -97,6 +97,26 @@ def test_patchmatch_is_deterministic_for_a_seed(blob_small):
     assert not np.array_equal(a[0], c[0])
 
 
+def test_pixels_outside_the_mask_are_not_computed(blob_small):
+    """A view's mask limits PatchMatch to its foreground: outside it depth stays 0 (never computed, never propagated
+    from), inside it the depths match the truth as without a mask."""
+    ds = Dataset.open(blob_small)
+    cfg = MVSConfig(**FAST)
+    v, srcs, lo, hi, params = _single_view(ds, 0, cfg)
+    ref, src = _gray(ds.image(v)), [_gray(ds.image(s)) for s in srcs]
+    gt = np.load(blob_small / "depth" / f"{v.name}.npy")
+    active = np.zeros(gt.shape, bool)
+    active[:, : gt.shape[1] // 2] = True  # the left half of the image
+    depth, normal, cost = patchmatch_view(ref, v, src, srcs, lo, hi, params, 3, seed=1, active=active,
+                                          seeds=ds.model.points_seen_by(v.name))
+    assert (depth[~active] == 0).all() and (depth[active & (gt > 0)] > 0).all()
+    full = patchmatch_view(ref, v, src, srcs, lo, hi, params, 3, seed=1, seeds=ds.model.points_seen_by(v.name))[0]
+    inner = active & (gt > 0)
+    inner[:, gt.shape[1] // 2 - 6:] = False  # away from the mask's edge
+    for d in (depth, full):
+        assert np.mean(np.abs(d[inner] - gt[inner]) / gt[inner] < 0.01) > 0.8  # measured 0.87 masked, 0.85 not
+
+
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
     return synth_scene(tmp_path_factory, "room", scene="room", views=16, width=256, height=192, points=2000, seed=4)
@@ -151,3 +171,15 @@ def test_views_without_sources_are_skipped_with_a_reason(blob_small, tmp_path):
     with pytest.raises(NoDepthError, match=f"{ds.views[0].name}: no source view"):
         run_mvs(single, tmp_path / "d", MVSConfig(**FAST))
     assert not list((tmp_path / "d").glob("*.npy"))
+
+
+def test_extra_geometric_round_at_the_chosen_level():
+    """ACMM's extra geometric round runs right after its level's own round: last at full resolution by default,
+    before the full-resolution round with --pm-final-level 1 (so one full-resolution round instead of two)."""
+    from photorecon.depth.patchmatch import pm_rounds
+
+    assert pm_rounds(MVSConfig()) == [(2, False, 5), (1, True, 1), (0, True, 1), (0, True, 1)]
+    assert pm_rounds(MVSConfig(pm_final_level=1)) == [(2, False, 5), (1, True, 1), (1, True, 1), (0, True, 1)]
+    assert pm_rounds(MVSConfig(pm_final_level=5)) == pm_rounds(MVSConfig(pm_final_level=1))  # clamped to the pyramid
+    assert pm_rounds(MVSConfig(pm_levels=1)) == [(0, False, 5), (0, True, 1)]
+    assert pm_rounds(MVSConfig(pm_final_iterations=0)) == [(2, False, 5), (1, True, 1), (0, True, 1)]

@@ -16,6 +16,7 @@ preview PNG (the mesh from outside and from the input cameras) in --out. Prints 
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import sys
 import tempfile
@@ -100,9 +101,14 @@ def main() -> int:
     ap.add_argument("--planar-prior", action=argparse.BooleanOptionalAction, default=None,
                     help="override MVSConfig.planar_prior")
     ap.add_argument("--data", default=str(DATA), help="the shared data folder (default: ../shared/data)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="override any MVSConfig setting, e.g. --set pm_radius=5 (repeatable)")
     args = ap.parse_args()
     progress.set_enabled(False)
     over = {k: v for k, v in (("max_size", args.max_size), ("planar_prior", args.planar_prior)) if v is not None}
+    for item in args.set:
+        name, _, value = item.partition("=")
+        over[name.strip()] = ast.literal_eval(value.strip())
     cfg = MVSConfig(**over)
     warm = warm_up()
     print(f"numba warm-up (compile or cache load): {warm:.1f} s", flush=True)

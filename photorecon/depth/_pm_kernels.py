@@ -303,11 +303,12 @@ def _facing(n0, n1, n2, r0, r1, r2):
 @njit(parallel=True, cache=True)
 def init_random(depth, normal, Kinv, dmin, dmax, seed, only_invalid):
     """Random hypotheses (depth uniform in inverse depth over [dmin, dmax], normal uniform on the hemisphere
-    facing the camera) for every pixel, or for those with depth <= 0 when ``only_invalid``."""
+    facing the camera) for every pixel, or for those with depth 0 when ``only_invalid`` (a negative depth marks a
+    pixel outside the mask: left alone)."""
     H, W = depth.shape
     for y in prange(H):
         for x in range(W):
-            if only_invalid and depth[y, x] > 0:
+            if only_invalid and depth[y, x] != 0:
                 continue
             s = _seed(seed, 7777, y, x)
             s, u = _rand(s)
@@ -403,7 +404,8 @@ def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo
 @njit(parallel=True, cache=True, fastmath=True)
 def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
-            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, depth, normal, cost):
+            tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, skip_px, skip_n,
+            depth, normal, cost):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
 
     1. candidates: the current hypothesis and, from each of the 8 regions around it (other colour), the
@@ -418,7 +420,10 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
        (for an upsampled, already converged surface), 6 = those and random depth, normal and both (0 = none).
 
     Candidates within ``same_depth`` (relative) and whose normals' cosine exceeds ``same_cos`` of an earlier
-    candidate share its costs (neighbours of a converged surface propagate nearly the same plane).
+    candidate share its costs (neighbours of a converged surface propagate nearly the same plane). With the
+    geometric term and ``skip_n`` > 0, a pixel whose hypothesis at least ``skip_n`` sources' depth maps confirm
+    (forward-backward reprojection error below ``skip_px``) is left as it is (converged), and so are pixels of
+    negative depth (outside the view's mask: never computed, never a candidate).
     """
     H, W = ref.shape
     S = srcs.shape[0]
@@ -442,12 +447,21 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
         bestj = np.empty(S, np.float64)
         gq = np.empty((S, 3), np.float64)
         for x in range((y + color) % 2, W, 2):
+            if depth[y, x] < 0:  # outside the mask
+                continue
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
-            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             if use_geo:
                 _geo_rays(GP, r0, r1, r2, gq)
+                if skip_n > 0 and depth[y, x] > 0:
+                    n_ok = 0
+                    for j in range(S):
+                        if _geo(j, depth[y, x], gq, Ge, GM, Gg, sdepth, x, y, delta_geo) < skip_px:
+                            n_ok += 1
+                    if n_ok >= skip_n:  # converged: the other views' depth maps confirm it
+                        continue
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
             # 1. candidates
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
@@ -646,3 +660,55 @@ def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
     dv = np.empty(ns, np.float64)
     sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
     return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
+
+
+@njit(parallel=True, cache=True)
+def consistency_source(depth, Kr, Krinv, R, t, Ks, Ksinv, sdepth, reproj_px, rel_depth, cnt, err_rows, n_rows):
+    """The multi-view filter's test of every depth of the reference map ``depth`` against one source's depth map
+    ``sdepth`` (pinhole cameras; ``R, t``: source from reference): the point goes into the source, takes the
+    source's depth at the nearest pixel and comes back; ``cnt`` += 1 where the reprojection error is below
+    ``reproj_px`` pixels and the relative depth difference below ``rel_depth``; ``err_rows`` / ``n_rows`` get
+    each row's sum and number of the agreeing errors (summed by the caller: deterministic)."""
+    H, W = depth.shape
+    hs, ws = sdepth.shape
+    for y in prange(H):
+        es = 0.0
+        en = 0
+        for x in range(W):
+            d = depth[y, x]
+            if not d > 0:
+                continue
+            X0 = d * (Krinv[0, 0] * x + Krinv[0, 1] * y + Krinv[0, 2])
+            X1 = d * (Krinv[1, 0] * x + Krinv[1, 1] * y + Krinv[1, 2])
+            X2 = d * (Krinv[2, 0] * x + Krinv[2, 1] * y + Krinv[2, 2])
+            S0 = R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2 + t[0]
+            S1 = R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2 + t[1]
+            S2 = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2 + t[2]
+            if not S2 > 0:
+                continue
+            u = (Ks[0, 0] * S0 + Ks[0, 1] * S1 + Ks[0, 2] * S2) / S2
+            v = (Ks[1, 0] * S0 + Ks[1, 1] * S1 + Ks[1, 2] * S2) / S2
+            if not (u > -0.5 and v > -0.5 and u < ws - 0.5 and v < hs - 0.5):
+                continue
+            i = int(math.floor(u + 0.5))
+            j = int(math.floor(v + 0.5))
+            ds = sdepth[j, i]
+            if not ds > 0:
+                continue
+            P0 = ds * (Ksinv[0, 0] * i + Ksinv[0, 1] * j + Ksinv[0, 2]) - t[0]
+            P1 = ds * (Ksinv[1, 0] * i + Ksinv[1, 1] * j + Ksinv[1, 2]) - t[1]
+            P2 = ds * (Ksinv[2, 0] * i + Ksinv[2, 1] * j + Ksinv[2, 2]) - t[2]
+            B0 = R[0, 0] * P0 + R[1, 0] * P1 + R[2, 0] * P2  # R^T (P - t): back in the reference frame
+            B1 = R[0, 1] * P0 + R[1, 1] * P1 + R[2, 1] * P2
+            B2 = R[0, 2] * P0 + R[1, 2] * P1 + R[2, 2] * P2
+            if not B2 > 0:
+                continue
+            ur = (Kr[0, 0] * B0 + Kr[0, 1] * B1 + Kr[0, 2] * B2) / B2
+            vr = (Kr[1, 0] * B0 + Kr[1, 1] * B1 + Kr[1, 2] * B2) / B2
+            e = math.sqrt((ur - x) ** 2 + (vr - y) ** 2)
+            if e < reproj_px and abs(B2 - d) / d < rel_depth:
+                cnt[y, x] += 1
+                es += e
+                en += 1
+        err_rows[y] += es
+        n_rows[y] += en

@@ -65,11 +65,13 @@ class MVSConfig:
     pm_iterations: int = field(default=5, metadata={"help": "patchmatch: iterations at the coarsest level"})
     pm_fine_iterations: int = field(default=1, metadata={"help": "patchmatch: iterations at each finer level"})
     pm_final_iterations: int = field(default=1, metadata={"help": "patchmatch: extra geometric-consistency iterations at full working resolution"})
-    pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius in pixels"})
+    pm_final_level: int = field(default=0, metadata={"help": "patchmatch: pyramid level of the extra geometric-consistency round (0 = full working resolution, after it; 1 = half, before the full-resolution round: measured 1.3x faster, 2.6 points less coverage)"})
+    pm_skip_consistent: int = field(default=2, metadata={"help": "patchmatch: in the extra geometric-consistency round, leave a pixel as it is when at least this many source views' depth maps confirm it within 1 pixel (0 = off; measured 1.3x faster at the same accuracy)"})
+    pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius in pixels (5 with --pm-stride 2: 6x6 = 36 samples over 11x11 pixels; 4: 25 over 9x9, 1.2x faster, better on the synthetic benchmarks, 0.4 points less F@1mm on a real walnut)"})
     pm_stride: int = field(default=2, metadata={"help": "patchmatch: NCC window sampled every this many pixels"})
     pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: bilateral NCC weight's grey-level sigma (grey in 0..1)"})
     pm_fine_sources: int = field(default=4, metadata={"help": "patchmatch: after the coarsest level, match only the best this many of the source views (0 = all; measured at 1600x1067: 4 of 8 is 1.6x faster, same accuracy)"})
-    pm_fine_refine: int = field(default=3, metadata={"help": "patchmatch: refinement hypotheses per pixel after the coarsest level (3: perturbed depth, normal, both; 6: also random ones)"})
+    pm_fine_refine: int = field(default=2, metadata={"help": "patchmatch: refinement hypotheses per pixel after the coarsest level (2: perturbed depth, perturbed normal; 3: also both; 6: also random ones)"})
     pm_reuse_cost: bool = field(default=True, metadata={"help": "patchmatch: finer levels start from the coarser level's costs (upsampled) instead of recomputing them"})
     pm_same_depth: float = field(default=1e-3, metadata={"help": "patchmatch: candidates this close in relative depth (and --pm-same-normal-deg in normal) share one cost evaluation"})
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees"})
@@ -285,7 +287,18 @@ def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSC
       reprojection error, 0.9 footprints off the plane, normals 6 degrees apart).
 
     Returns (counts (h, w) int32, sum and number of the point-agreeing pairs' forward-backward reprojection
-    errors in pixels)."""
+    errors in pixels). Pinhole cameras without the plane test take the compiled path
+    (``_consistency_count_pinhole``); the others the numpy one (``_consistency_count_any``)."""
+    views = [r.view] + [sources[s].view for s in r.sources if s in sources]
+    plane = cfg.plane_reproj_px > 0 and r.normal is not None
+    if not plane and not any(v.intrinsics.has_distortion for v in views):
+        return _consistency_count_pinhole(r, sources, cfg)
+    return _consistency_count_any(r, sources, cfg)
+
+
+def _consistency_count_any(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
+    """``consistency_count`` for any camera model and the plane test (numpy; distortion through
+    ``cameras.project``)."""
     d = r.depth
     valid = d > 0
     cnt = np.zeros(d.shape, np.int32)
@@ -330,6 +343,28 @@ def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSC
         agree[np.flatnonzero(ok)] = good
         cnt[valid] += agree
     return cnt, err_sum, err_n
+
+
+def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
+    """``consistency_count`` for cameras without distortion, compiled (``_pm_kernels.consistency_source``)."""
+    from . import _pm_kernels as k
+
+    d = np.ascontiguousarray(r.depth, np.float32)
+    cnt = np.zeros(d.shape, np.int32)
+    err_rows = np.zeros(d.shape[0], np.float64)
+    n_rows = np.zeros(d.shape[0], np.int64)
+    Kr = np.asarray(r.view.intrinsics.K, np.float64)
+    world_from_ref = invert_rigid(r.view.cam_from_world)
+    for sname in r.sources:
+        s = sources.get(sname)
+        if s is None:
+            continue
+        rel = s.view.cam_from_world @ world_from_ref
+        Ks = np.asarray(s.view.intrinsics.K, np.float64)
+        k.consistency_source(d, Kr, np.linalg.inv(Kr), np.ascontiguousarray(rel[:3, :3]), np.ascontiguousarray(rel[:3, 3]),
+                             Ks, np.linalg.inv(Ks), np.ascontiguousarray(s.depth, np.float32), float(cfg.reproj_px),
+                             float(cfg.rel_depth), cnt, err_rows, n_rows)
+    return cnt, float(err_rows.sum()), int(n_rows.sum())
 
 
 def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
@@ -399,6 +434,28 @@ def _working_grey(ctx: _MVSContext, name: str) -> np.ndarray:
             _GREY_CACHE.pop(next(iter(_GREY_CACHE)))
         _GREY_CACHE[key] = g
     return g
+
+
+_MASK_CACHE: dict[tuple, np.ndarray | None] = {}  # per process: the last few views' masks at working resolution
+
+
+def _level_mask(ctx: _MVSContext, name: str, lv: View) -> np.ndarray | None:
+    """View ``name``'s mask (True = foreground) at ``lv``'s resolution, or None without one: PatchMatch computes
+    only these pixels. A pixel of a coarser level is foreground when any of its working-resolution pixels is."""
+    v = _dataset_view(ctx, name)
+    wv = ctx.plan[name][0] if name in ctx.plan else _working_view(v, ctx.cfg.max_size)
+    key = (str(ctx.dataset.image_path(v)), str(ctx.dataset.mask_path(v)), wv.intrinsics.size)
+    if key not in _MASK_CACHE:
+        m = ctx.dataset.mask(v)
+        if m is not None and m.shape != (wv.intrinsics.height, wv.intrinsics.width):
+            m = cv2.resize(m.astype(np.uint8), wv.intrinsics.size, interpolation=cv2.INTER_NEAREST) > 0
+        while len(_MASK_CACHE) >= 12:
+            _MASK_CACHE.pop(next(iter(_MASK_CACHE)))
+        _MASK_CACHE[key] = m
+    m = _MASK_CACHE[key]
+    if m is None or m.shape == (lv.intrinsics.height, lv.intrinsics.width):
+        return m
+    return cv2.resize(m.astype(np.float32), lv.intrinsics.size, interpolation=cv2.INTER_AREA) > 0
 
 
 def _level_image(ctx: _MVSContext, name: str, lv: View) -> np.ndarray:
@@ -480,7 +537,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             return _load(ctx.work / f"r{rr}" / f"{n}.{what}.npy")
 
         depth, normal, cost, _ = pm_view_round(jobs[name], r, jobs, lambda n, lv: _level_image(ctx, n, lv),
-                                               PatchMatchParams(cfg), load)
+                                               PatchMatchParams(cfg), load, lambda n, lv: _level_mask(ctx, n, lv))
         seconds = time.perf_counter() - t0
         if last:
             _finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
@@ -632,6 +689,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method})")
     t_graph = time.perf_counter() - t_graph
     _GREY_CACHE.clear()
+    _MASK_CACHE.clear()
     t_all = time.perf_counter() - t0
     task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
     consistency: dict = {}
