@@ -21,7 +21,7 @@ import json
 import sys
 import tempfile
 import time
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
@@ -56,7 +56,7 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
-def run_one(name: str, root: Path, out: Path, cfg: MVSConfig) -> dict:
+def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | None = None) -> dict:
     ds = Dataset.open(root)
     work = out / name
     work.mkdir(parents=True, exist_ok=True)
@@ -68,7 +68,7 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig) -> dict:
     confirmed = [v["valid_fraction"] for v in rep["per_view"].values()]
     t1 = time.perf_counter()
     dsd = Dataset.open(root, depth_dir=work / "depth")
-    fc = FusionConfig(trunc_voxels=3.0)
+    fc = FusionConfig(**{"trunc_voxels": 3.0, **(fusion or {})})
     mesh = clean(fuse(load_frames(dsd, fc), fc, dsd.model.points), CleanConfig())
     t_fuse = time.perf_counter() - t1
     export(mesh, work / "mesh.ply")
@@ -102,13 +102,16 @@ def main() -> int:
                     help="override MVSConfig.planar_prior")
     ap.add_argument("--data", default=str(DATA), help="the shared data folder (default: ../shared/data)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="override any MVSConfig setting, e.g. --set pm_radius=5 (repeatable)")
+                    help="override any MVSConfig or FusionConfig setting, e.g. --set pm_radius=5 --set normal_sdf=0.2 "
+                         "(repeatable)")
     args = ap.parse_args()
     progress.set_enabled(False)
     over = {k: v for k, v in (("max_size", args.max_size), ("planar_prior", args.planar_prior)) if v is not None}
+    fusion_fields = {f.name for f in fields(FusionConfig)}
+    fusion = {}
     for item in args.set:
         name, _, value = item.partition("=")
-        over[name.strip()] = ast.literal_eval(value.strip())
+        (fusion if name.strip() in fusion_fields else over)[name.strip()] = ast.literal_eval(value.strip())
     cfg = MVSConfig(**over)
     warm = warm_up()
     print(f"numba warm-up (compile or cache load): {warm:.1f} s", flush=True)
@@ -118,11 +121,11 @@ def main() -> int:
         if not root.is_dir():
             print(f"{name}: {root} not found, skipped", file=sys.stderr)
             continue
-        row = run_one(name, root, Path(args.out), cfg)
+        row = run_one(name, root, Path(args.out), cfg, fusion)
         rows.append(row)
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
         if args.json:
-            Path(args.json).write_text(json.dumps({"warm_up_s": warm, "config": asdict(cfg), "rows": rows}, indent=1))
+            Path(args.json).write_text(json.dumps({"warm_up_s": warm, "config": asdict(cfg), "fusion": fusion, "rows": rows}, indent=1))
     cols = ["dataset", "size", "mvs_s_per_view", "mvs_peak_mb", "confirmed_2_views_mean", "faces",
             "acc@1mm", "comp@1mm", "F@0.5mm", "F@1mm", "F@2mm"]
     print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
