@@ -138,3 +138,27 @@ def synth_scene(tmp_path_factory, name: str, **cfg):
     out = tmp_path_factory.mktemp(name)
     synthesize(SynthConfig(**cfg), out, overwrite=True)
     return out
+
+
+def multiscale_texture(n: int, scales: tuple[int, ...], seed: int = 0) -> np.ndarray:
+    """An (n, n) float image around grey 0.5 (std 0.15): random blocks of each size in ``scales`` summed, the
+    larger ones weighted more; a texture PatchMatch can match at every pyramid level."""
+    rng = np.random.default_rng(seed)
+    tex = np.zeros((n, n), np.float32)
+    for s in scales:
+        tex += np.kron(rng.random((n // s, n // s)), np.ones((s, s))).astype(np.float32) * (s / max(scales))
+    return 0.5 + 0.15 * (tex - tex.mean()) / tex.std()
+
+
+def textured_plane(path, image: np.ndarray, half: float = 2.0):
+    """Write the square z = 0, ``half`` on each side of the origin, textured with the grey uint8 ``image``, as a
+    GLB at ``path`` (a mesh for ``SynthConfig(mesh=...)``). Returns ``path``."""
+    import trimesh
+    from PIL import Image
+
+    h = half
+    mesh = trimesh.Trimesh([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [1, 1], [0, 1]],
+                                                image=Image.fromarray(np.stack([image] * 3, -1)))
+    mesh.export(path)
+    return path

@@ -3,13 +3,12 @@ ground truth: a textured plane seen by a low ring of cameras. Views agree on the
 along their rays; the plane test (``MVSConfig.plane_reproj_px``) keeps such depths, and they stay on the plane."""
 import numpy as np
 import pytest
-import trimesh
-from PIL import Image
 
 from photorecon.cameras import backproject_depth
 from photorecon.depth.mvs import DepthResult, MVSConfig, _working_view, consistency_count, run_mvs
 from photorecon.io.dataset import Dataset
 from photorecon.synthetic import SynthConfig, synthesize
+from photorecon.testing import multiscale_texture, textured_plane
 
 PLANE_PX = 10.0  # the setting for scenes with ground (off by default)
 FAST = dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=1, pm_final_iterations=1)
@@ -20,16 +19,8 @@ def grazing_raw(tmp_path_factory):
     """A 4x4 textured plane z = 0, 12 cameras on a ring 10 degrees above it; PatchMatch depth, normals and
     confidence of every view before the geometric filter (min_consistent 0)."""
     root = tmp_path_factory.mktemp("grazing")
-    rng = np.random.default_rng(0)
-    n = 512
-    tex = np.zeros((n, n), np.float32)
-    for s in (2, 4, 8, 16):
-        tex += np.kron(rng.random((n // s, n // s)), np.ones((s, s))).astype(np.float32) * (s / 16)
-    img = (np.clip(0.5 + 0.15 * (tex - tex.mean()) / tex.std(), 0, 1) * 255).astype(np.uint8)
-    mesh = trimesh.Trimesh([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [1, 1], [0, 1]],
-                                                image=Image.fromarray(np.stack([img] * 3, -1)))
-    mesh.export(root / "plane.glb")
+    img = (np.clip(multiscale_texture(512, (2, 4, 8, 16)), 0, 1) * 255).astype(np.uint8)
+    textured_plane(root / "plane.glb", img)
     synthesize(SynthConfig(mesh=str(root / "plane.glb"), rig="ring", elevation=10.0, views=12, width=160, height=120,
                            radius=1.5, points=3000, seed=2), root / "data", overwrite=True)
     ds = Dataset.open(root / "data")

@@ -2,14 +2,13 @@
 textureless square in its middle, where photometric matching has no evidence."""
 import numpy as np
 import pytest
-import trimesh
-from PIL import Image
 
 from photorecon.depth.mvs import MVSConfig, _gray, run_mvs
 from photorecon.depth.planar import prior_planes, textureless
 from photorecon.io.dataset import Dataset
 from photorecon.metrics import depth_metrics
 from photorecon.synthetic import SynthConfig, synthesize
+from photorecon.testing import multiscale_texture, textured_plane
 
 FAST = dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=2, pm_final_iterations=1)
 
@@ -40,19 +39,11 @@ def test_prior_planes_recover_a_plane_from_its_support_points():
 def flat_square(tmp_path_factory):
     """A 4x4 plane with a rich texture and a flat grey square (1/4 of its side) in the middle."""
     root = tmp_path_factory.mktemp("flat_square")
-    rng = np.random.default_rng(0)
     n = 256
-    tex = np.zeros((n, n), np.float32)
-    for s in (4, 8, 16, 32):
-        tex += np.kron(rng.random((n // s, n // s)), np.ones((s, s))).astype(np.float32) * (s / 32)
-    img = 0.5 + 0.15 * (tex - tex.mean()) / tex.std()
+    img = multiscale_texture(n, (4, 8, 16, 32))
     c = slice(3 * n // 8, 5 * n // 8)
     img[c, c] = 0.55
-    img = (np.clip(img, 0, 1) * 255).astype(np.uint8)
-    mesh = trimesh.Trimesh([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], [[0, 1, 2], [0, 2, 3]], process=False)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [1, 1], [0, 1]],
-                                                image=Image.fromarray(np.stack([img] * 3, -1)))
-    mesh.export(root / "plane.glb")
+    textured_plane(root / "plane.glb", (np.clip(img, 0, 1) * 255).astype(np.uint8))
     synthesize(SynthConfig(mesh=str(root / "plane.glb"), rig="hemisphere", views=10, width=200, height=150,
                            radius=2.2, points=1500, seed=2), root / "data", overwrite=True)
     return root / "data"
