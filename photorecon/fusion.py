@@ -953,14 +953,14 @@ def _patch_colors(open_mesh: trimesh.Trimesh, patch: trimesh.Trimesh, cloud, poi
     # the patch's vertices that lie on the surface (the rim, and any surface vertex the filler reused)
     d, j = cKDTree(np.asarray(open_mesh.vertices)).query(PV, k=1)
     on_rim = d <= 1e-9 * max(1.0, float(np.abs(PV).max()))
+    if not on_rim.any():  # no rim found (should not happen): nearest observed colour
+        _, k = cKDTree(np.asarray(cloud.points)).query(points)
+        return np.asarray(cloud.colors)[k]
     if open_mesh.visual.kind == "vertex" and len(open_mesh.visual.vertex_colors) == len(open_mesh.vertices):
         rim_col = np.asarray(open_mesh.visual.vertex_colors)[j[on_rim], :3] / 255.0
     else:
         _, k = cKDTree(np.asarray(cloud.points)).query(PV[on_rim])
         rim_col = np.asarray(cloud.colors)[k]
-    if not on_rim.any():  # no rim found (should not happen): nearest observed colour
-        _, k = cKDTree(np.asarray(cloud.points)).query(points)
-        return np.asarray(cloud.colors)[k]
     vc = harmonic_fill(len(PV), patch.edges_unique, np.flatnonzero(on_rim), rim_col)
     bary = trimesh.triangles.points_to_barycentric(PV[PF[face_index]], points)
     return np.clip(np.einsum("nk,nkc->nc", bary, vc[PF[face_index]]), 0.0, 1.0)

@@ -31,7 +31,7 @@ import logging
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Callable, Literal
 
 import cv2
 import numpy as np
@@ -413,46 +413,58 @@ def _dataset_view(ctx: _MVSContext, name: str) -> View:
     return next(v for v in ctx.dataset.views if v.name == name)
 
 
+_CACHE_SIZE = 12  # images (and masks) per process: a view's sources and itself, with room to spare
 _GREY_CACHE: dict[tuple, np.ndarray] = {}  # per process: the last few working-resolution grey images
+_MASK_CACHE: dict[tuple, np.ndarray | None] = {}  # per process: the last few views' masks at working resolution
+
+
+def _cached(cache: dict, key: tuple, make: Callable[[], object]):
+    """``cache[key]``, made by ``make()`` on a miss; the oldest entry goes when the cache holds ``_CACHE_SIZE``."""
+    if key not in cache:
+        value = make()
+        while len(cache) >= _CACHE_SIZE:
+            cache.pop(next(iter(cache)))
+        cache[key] = value
+    return cache[key]
+
+
+def _plan_view(ctx: _MVSContext, name: str) -> View:
+    """View ``name`` at its working resolution (the plan's, else from ``max_size``)."""
+    return ctx.plan[name][0] if name in ctx.plan else _working_view(_dataset_view(ctx, name), ctx.cfg.max_size)
 
 
 def _working_grey(ctx: _MVSContext, name: str) -> np.ndarray:
     """View ``name``'s grey image (float32 0..1) at its working resolution, from a small per-process cache."""
     v = _dataset_view(ctx, name)
-    wv = ctx.plan[name][0] if name in ctx.plan else _working_view(v, ctx.cfg.max_size)
+    wv = _plan_view(ctx, name)
     path = ctx.dataset.image_path(v)
     try:
         key = (str(path), path.stat().st_mtime_ns, wv.intrinsics.size)
     except OSError:
         key = (str(path), None, wv.intrinsics.size)
-    g = _GREY_CACHE.get(key)
-    if g is None:
+
+    def make():
         g = _gray(ctx.dataset.image(v))
         if g.shape != (wv.intrinsics.height, wv.intrinsics.width):
             g = cv2.resize(g, wv.intrinsics.size, interpolation=cv2.INTER_AREA)
-        while len(_GREY_CACHE) >= 12:
-            _GREY_CACHE.pop(next(iter(_GREY_CACHE)))
-        _GREY_CACHE[key] = g
-    return g
+        return g
 
-
-_MASK_CACHE: dict[tuple, np.ndarray | None] = {}  # per process: the last few views' masks at working resolution
+    return _cached(_GREY_CACHE, key, make)
 
 
 def _level_mask(ctx: _MVSContext, name: str, lv: View) -> np.ndarray | None:
     """View ``name``'s mask (True = foreground) at ``lv``'s resolution, or None without one: PatchMatch computes
     only these pixels. A pixel of a coarser level is foreground when any of its working-resolution pixels is."""
     v = _dataset_view(ctx, name)
-    wv = ctx.plan[name][0] if name in ctx.plan else _working_view(v, ctx.cfg.max_size)
-    key = (str(ctx.dataset.image_path(v)), str(ctx.dataset.mask_path(v)), wv.intrinsics.size)
-    if key not in _MASK_CACHE:
+    wv = _plan_view(ctx, name)
+
+    def make():
         m = ctx.dataset.mask(v)
         if m is not None and m.shape != (wv.intrinsics.height, wv.intrinsics.width):
             m = cv2.resize(m.astype(np.uint8), wv.intrinsics.size, interpolation=cv2.INTER_NEAREST) > 0
-        while len(_MASK_CACHE) >= 12:
-            _MASK_CACHE.pop(next(iter(_MASK_CACHE)))
-        _MASK_CACHE[key] = m
-    m = _MASK_CACHE[key]
+        return m
+
+    m = _cached(_MASK_CACHE, (str(ctx.dataset.image_path(v)), str(ctx.dataset.mask_path(v)), wv.intrinsics.size), make)
     if m is None or m.shape == (lv.intrinsics.height, lv.intrinsics.width):
         return m
     return cv2.resize(m.astype(np.float32), lv.intrinsics.size, interpolation=cv2.INTER_AREA) > 0

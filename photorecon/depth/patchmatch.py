@@ -190,12 +190,12 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         Ge, Gg = np.zeros((len(sources), 3)), np.zeros((len(sources), 3))
         use_geo, lam = False, 0.0
     delta = 3.0
+    best_k = max(1, min(len(sources), (len(sources) + 1) // 2))  # the cost aggregates the best half of the sources
     if init_cost is not None and init_cost.shape == (H, W):
         cost = np.array(init_cost, np.float32)  # a copy: the kernel updates it
         cost[depth <= 0] = 2.0 + lam * delta
     else:
         cost = np.empty((H, W), np.float32)
-        best_k = max(1, min(len(sources), (len(sources) + 1) // 2))
         k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta,
                        params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, depth, normal, cost)
     if prior is not None:  # planar prior (ACMP-style): hypotheses from triangulated confident pixels
@@ -203,8 +203,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
 
         def cost_of(d, n, out):
             k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta, params.sdy,
-                           params.sdx, params.sspat, params.sigma_c, params.min_var, max(1, min(len(sources), (len(sources) + 1) // 2)),
-                           d, n, out)
+                           params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, d, n, out)
 
         st = inject_prior(depth, normal, cost, prior, g.Kinv, dmin, dmax, cost_of)
         log.debug("planar prior: %s", st)
