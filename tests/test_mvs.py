@@ -118,5 +118,5 @@ def test_compiled_consistency_filter_matches_numpy(blob_fusion, plane_px):
         assert (c1 != c2).mean() < 1e-4 and abs(n1 - n2) <= 1e-4 * n1, ((c1 != c2).sum(), n1, n2)
         assert abs(e1 / n1 - e2 / n2) < 1e-4
         if plane_px:
-            c0 = _consistency_count_pinhole(r, res, MVSConfig(reproj_px=1.0, rel_depth=0.004))[0]
+            c0 = _consistency_count_pinhole(r, res, MVSConfig(reproj_px=1.0, rel_depth=0.004, plane_reproj_px=0.0))[0]
             assert c2.sum() > 1.05 * c0.sum(), (c2.sum(), c0.sum())
