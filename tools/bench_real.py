@@ -116,8 +116,8 @@ def support_plane(mesh, reference: np.ndarray, taus=TAUS, iters: int = 1000, see
     """The platform an object stands on, for a DTU-style score that leaves it out (DTU's evaluation has a table
     plane per scan; the walnuts' reference cloud, cleaned by hand, has no platform): a RANSAC plane through the
     result's samples that the reference does not explain (farther than the middle tau from it), inliers within
-    half the smallest tau. Accepted only when at least 99.9% of the reference lies on one side of it (a
-    support, not a plane through the object) and it holds at least 1% of the samples. Returns (n, c_crop,
+    half the smallest tau. Accepted only when the whole reference lies on one side of it (a support, not a
+    plane through the object) and it holds at least 1% of the samples. Returns (n, c_crop,
     plane_offset): n towards the reference, c_crop = the reference's lowest point along n (result samples below
     it are what the score leaves out), or None."""
     from scipy.spatial import cKDTree
@@ -146,7 +146,7 @@ def support_plane(mesh, reference: np.ndarray, taus=TAUS, iters: int = 1000, see
     h = reference @ n - c
     if np.median(h) < 0:
         n, c, h = -n, -c, -h
-    if np.mean(h > 0) < 0.999:
+    if h.min() <= 0:
         return None
     return n, float((reference @ n).min()), c
 
