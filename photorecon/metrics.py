@@ -97,7 +97,7 @@ class CloudMetrics:
     reference_spacing: float  # median nearest-neighbour distance between reference points
     result_samples: int  # result samples evaluated (after cropping)
     crop_margin: float | None
-    cropped: int  # result samples left out by crop_margin
+    cropped: int  # result samples left out by crop_margin and crop_plane
     outside_fraction: float  # of all result samples: farther than max(tau) from the reference's bounding box
     reference: str = "points"
 
@@ -175,7 +175,8 @@ def _crop(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: float | None)
 
 
 def cloud_metrics(result: trimesh.Trimesh | np.ndarray, reference, taus: Sequence[float] | float,
-                  n_samples: int = 200_000, seed: int = 0, crop_margin: float | None = None) -> CloudMetrics:
+                  n_samples: int = 200_000, seed: int = 0, crop_margin: float | None = None,
+                  crop_plane: tuple[np.ndarray, float] | None = None) -> CloudMetrics:
     """Compare ``result`` (a triangle mesh, or (N, 3) points) with a reference point cloud ((M, 3) points
     or a face-less ``Trimesh`` / ``PointCloud``; a triangle mesh is sampled), DTU / T&T style.
 
@@ -188,7 +189,11 @@ def cloud_metrics(result: trimesh.Trimesh | np.ndarray, reference, taus: Sequenc
     box (background the reference does not cover), as the T&T evaluation crops to its region. Only the
     accuracy side is cropped: completeness always measures reference points against the whole result.
     Without cropping, ``outside_fraction`` tells how much of the result lies beyond max(tau) outside the
-    box (every such sample counts as inaccurate at every tau)."""
+    box (every such sample counts as inaccurate at every tau).
+
+    ``crop_plane`` (unit normal n (3,), offset c): also leave out of accuracy the result samples with
+    n . x < c, as DTU's evaluation leaves out the table under its objects (its per-scan plane); the reference
+    points below it are left out of completeness."""
     taus = check_taus(taus)
     if isinstance(result, trimesh.Trimesh) and not len(result.faces):
         result = np.asarray(result.vertices, np.float64)
@@ -197,6 +202,14 @@ def cloud_metrics(result: trimesh.Trimesh | np.ndarray, reference, taus: Sequenc
     lo, hi = ref.min(0), ref.max(0)
     outside = float((_box_distance(res_pts, lo, hi) > max(taus)).mean())
     keep = _crop(res_pts, lo, hi, crop_margin)
+    if crop_plane is not None:
+        n, c = np.asarray(crop_plane[0], np.float64), float(crop_plane[1])
+        if n.shape != (3,) or not np.isfinite(n).all() or abs(np.linalg.norm(n) - 1) > 1e-6 or not np.isfinite(c):
+            raise BadArgumentError(f"crop plane: expected a unit normal (3,) and a finite offset, got {n}, {c}")
+        keep &= res_pts @ n >= c
+        ref = ref[ref @ n >= c]
+        if not keep.any() or not len(ref):
+            raise EmptyMeshError("no result sample or no reference point lies above the crop plane")
     from scipy.spatial import cKDTree
 
     tree = cKDTree(ref)

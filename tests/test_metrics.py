@@ -78,6 +78,22 @@ def test_crop_to_reference_ignores_background_only(sphere, reference):
         cloud_metrics(floor, reference, TAU, n_samples=10_000, crop_margin=0.5)
 
 
+def test_crop_plane_leaves_out_the_table_under_an_object(sphere, reference):
+    """DTU-style: a table the reference lacks, touching the object, lies inside the reference's box margin; the
+    crop plane (the table's, moved up to the reference's lowest point) leaves it out of accuracy only."""
+    table = trimesh.creation.box(extents=[3, 3, 0.01])
+    table.apply_translation([0, 0, -1.0 - 0.005 - TAU])  # its top just under the sphere's bottom
+    scene = trimesh.util.concatenate([sphere, table])
+    plain = cloud_metrics(scene, reference, TAU, n_samples=100_000, crop_margin=0.5)
+    n = np.array([0.0, 0.0, 1.0])
+    above = cloud_metrics(scene, reference, TAU, n_samples=100_000, crop_margin=0.5,
+                          crop_plane=(n, float((reference @ n).min())))
+    assert plain.at(TAU).precision < 0.6 and above.at(TAU).precision > 0.999, (plain, above)
+    assert above.at(TAU).recall == plain.at(TAU).recall and above.cropped > plain.cropped
+    with pytest.raises(BadArgumentError, match="unit normal"):
+        cloud_metrics(scene, reference, TAU, n_samples=1000, crop_plane=(2 * n, 0.0))
+
+
 def test_mesh_metrics_shares_thresholds(sphere):
     offset = _sphere(1 + 2 * TAU)
     m = mesh_metrics(sphere, offset, tau=3 * TAU, n_samples=20_000, taus=[TAU, 3 * TAU])

@@ -3,15 +3,19 @@
 
 * walnuts/<capture> (12-camera ring, 1280x1024, COLMAP cameras without points, reference.ply in metres):
   accuracy, completeness and F-score at 0.5, 1 and 2 mm against the reference cloud (result samples more
-  than 5 mm outside the reference's box are left out of accuracy: the platform and cables behind the nut).
+  than 5 mm outside the reference's box are left out of accuracy: the cables behind the nut). With
+  --support-plane also DTU-style, the platform under the nut left out (``support_plane``): the reference
+  cloud has no platform, the photos do.
 * herz-jesu-p8, entry-p10 (3072x2048 facades, Strecha ground-truth cameras): the fraction of each image's
-  pixels whose depth at least two other views confirm, and the fused mesh's face count.
+  pixels whose depth at least two other views confirm, the fused mesh's face count and the area of the
+  ground in front of the facade (``ground_area``: faces within 15 cm of, and facing like, a plane fitted to
+  the depth maps' bottom rows).
 
 Per dataset: MVS seconds per view (JIT warm-up excluded: it runs first on a tiny scene), peak memory, and a
 preview PNG (the mesh from outside and from the input cameras) in --out. Prints a table; --json writes it.
 
     python tools/bench_real.py [--only walnut1,herz] [--out bench_real] [--json real.json] [--max-size 1600]
-        [--planar-prior | --no-planar-prior] [--data ../shared/data]
+        [--planar-prior | --no-planar-prior] [--data ../shared/data] [--support-plane] [--set NAME=VALUE]
 """
 from __future__ import annotations
 
@@ -56,7 +60,97 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
-def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | None = None) -> dict:
+def _ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,
+                  max_tilt_deg: float = 90.0):
+    """(unit normal n, offset c) of the plane n . X = c through three of the points ``P`` (N, 3) that has the
+    most points within ``tol``, and that count; with ``up``, only planes whose normal is within
+    ``max_tilt_deg`` of it. (None, 0) when no plane qualifies."""
+    best, best_k = None, 0
+    for _ in range(iters):
+        a, b, c = P[rng.choice(len(P), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-15:
+            continue
+        n /= np.linalg.norm(n)
+        if up is not None and abs(n @ up) < np.cos(np.radians(max_tilt_deg)):
+            continue
+        k = int((np.abs(P @ n - n @ a) < tol).sum())
+        if k > best_k:
+            best, best_k = (n, float(n @ a)), k
+    return best, best_k
+
+
+def ground_plane(frames, rows: float = 0.15, tol: float = 0.05, max_tilt_deg: float = 35.0, iters: int = 1000,
+                 seed: int = 0):
+    """The ground in front of a facade: a RANSAC plane (unit normal n, offset c: n . X = c, n towards the
+    cameras) through the world points of the bottom ``rows`` of every depth map (the cameras look at the
+    facade with the ground below it), its normal within ``max_tilt_deg`` of the cameras' mean up direction
+    (so that the facade's own foot is not taken), inliers within ``tol`` (scene units), refined by least
+    squares."""
+    from photorecon.cameras import backproject_depth, invert_rigid
+
+    up = -np.mean([invert_rigid(f.view.cam_from_world)[:3, 1] for f in frames], axis=0)
+    up /= np.linalg.norm(up)
+    pts = []
+    for f in frames:
+        d = np.zeros_like(f.depth)
+        h = f.depth.shape[0]
+        d[int(h * (1 - rows)):] = f.depth[int(h * (1 - rows)):]
+        pts.append(backproject_depth(d, f.view.intrinsics, f.view.cam_from_world))
+    P = np.concatenate(pts)
+    rng = np.random.default_rng(seed)
+    P = P[rng.choice(len(P), min(len(P), 200_000), replace=False)]
+    (n, c), _ = _ransac_plane(P, tol, iters, rng, up, max_tilt_deg)
+    inl = P[np.abs(P @ n - c) < tol]
+    centre = inl.mean(0)
+    n = np.linalg.svd(inl - centre, full_matrices=False)[2][2]
+    cams = np.array([f.view.center for f in frames])
+    if np.median(cams @ n - n @ centre) < 0:
+        n = -n
+    return n, float(n @ centre)
+
+
+def ground_area(mesh, plane, tol: float = 0.15, max_angle_deg: float = 32.0) -> float:
+    """Area of the mesh's faces within ``tol`` of the ground ``plane`` (``ground_plane``) whose normals are within
+    ``max_angle_deg`` of its normal (scene units squared: m2 on the facades)."""
+    n, c = plane
+    near = np.abs(mesh.triangles_center @ n - c) < tol
+    flat = mesh.face_normals @ n > np.cos(np.radians(max_angle_deg))
+    return float(mesh.area_faces[near & flat].sum())
+
+
+def support_plane(mesh, reference: np.ndarray, taus=TAUS, iters: int = 1000, seed: int = 0):
+    """The platform an object stands on, for a DTU-style score that leaves it out (DTU's evaluation has a table
+    plane per scan; the walnuts' reference cloud, cleaned by hand, has no platform): a RANSAC plane through the
+    result's samples that the reference does not explain (farther than the middle tau from it), inliers within
+    half the smallest tau. Accepted only when the whole reference lies on one side of it (a support, not a
+    plane through the object) and it holds at least 1% of the samples. Returns (n, c_crop,
+    plane_offset): n towards the reference, c_crop = the reference's lowest point along n (result samples below
+    it are what the score leaves out), or None."""
+    from scipy.spatial import cKDTree
+
+    import trimesh
+
+    pts = trimesh.sample.sample_surface(mesh, 200_000, seed=seed)[0]
+    far = pts[cKDTree(reference).query(pts, workers=-1)[0] > sorted(taus)[len(taus) // 2]]
+    if len(far) < 0.01 * len(pts):
+        return None
+    rng = np.random.default_rng(seed)
+    tol = 0.5 * min(taus)
+    best, best_k = _ransac_plane(far, tol, iters, rng)
+    if best is None or best_k < 0.01 * len(pts):
+        return None
+    n, c = best
+    h = reference @ n - c
+    if np.median(h) < 0:
+        n, c, h = -n, -c, -h
+    if h.min() <= 0:
+        return None
+    return n, float((reference @ n).min()), c
+
+
+def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | None = None,
+            crop_support: bool = False) -> dict:
     ds = Dataset.open(root)
     work = out / name
     work.mkdir(parents=True, exist_ok=True)
@@ -69,7 +163,8 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
     t1 = time.perf_counter()
     dsd = Dataset.open(root, depth_dir=work / "depth")
     fc = FusionConfig(**{"trunc_voxels": 3.0, **(fusion or {})})
-    mesh = clean(fuse(load_frames(dsd, fc), fc, dsd.model.points), CleanConfig())
+    frames = load_frames(dsd, fc)
+    mesh = clean(fuse(frames, fc, dsd.model.points), CleanConfig())
     t_fuse = time.perf_counter() - t1
     export(mesh, work / "mesh.ply")
     render_preview(mesh, work / "preview.png", cameras=ds.views)
@@ -83,12 +178,28 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
            "skipped": rep["skipped"]}
     ref = root / "reference.ply"
     if ref.is_file():
-        m = cloud_metrics(mesh, load_reference(ref), TAUS, crop_margin=0.005)
+        reference = load_reference(ref)
+        m = cloud_metrics(mesh, reference, TAUS, crop_margin=0.005)
         for s in m.thresholds:
             mm = f"{s.tau * 1000:g}mm"
             row[f"acc@{mm}"], row[f"comp@{mm}"], row[f"F@{mm}"] = s.precision, s.recall, s.fscore
         row["accuracy_median_mm"] = m.accuracy_median * 1000
         row["completeness_median_mm"] = m.completeness_median * 1000
+        if crop_support:
+            plane = support_plane(mesh, reference)
+            row["support_plane"] = None if plane is None else {"normal": plane[0].round(5).tolist(),
+                                                               "crop_offset": plane[1], "plane_offset": plane[2]}
+            if plane is not None:
+                ms = cloud_metrics(mesh, reference, TAUS, crop_margin=0.005, crop_plane=plane[:2])
+                row["support_cropped_fraction"] = 1 - ms.result_samples / m.result_samples
+                for s in ms.thresholds:
+                    mm = f"{s.tau * 1000:g}mm"
+                    row[f"acc@{mm}_above_support"], row[f"comp@{mm}_above_support"] = s.precision, s.recall
+                    row[f"F@{mm}_above_support"] = s.fscore
+    else:
+        plane = ground_plane(frames)
+        row["ground_m2"] = ground_area(mesh, plane)
+        row["area_m2"] = float(mesh.area)
     return row
 
 
@@ -101,6 +212,10 @@ def main() -> int:
     ap.add_argument("--planar-prior", action=argparse.BooleanOptionalAction, default=None,
                     help="override MVSConfig.planar_prior")
     ap.add_argument("--data", default=str(DATA), help="the shared data folder (default: ../shared/data)")
+    ap.add_argument("--support-plane", action="store_true",
+                    help="walnuts: also score with the platform under the nut left out, DTU-style (result samples "
+                         "below the reference's lowest point along a plane fitted to the result's unexplained "
+                         "samples; support_plane()); the uncropped scores are always reported")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="override any MVSConfig or FusionConfig setting, e.g. --set pm_radius=5 --set normal_sdf=0.2 "
                          "(repeatable)")
@@ -121,13 +236,15 @@ def main() -> int:
         if not root.is_dir():
             print(f"{name}: {root} not found, skipped", file=sys.stderr)
             continue
-        row = run_one(name, root, Path(args.out), cfg, fusion)
+        row = run_one(name, root, Path(args.out), cfg, fusion, args.support_plane)
         rows.append(row)
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
         if args.json:
             Path(args.json).write_text(json.dumps({"warm_up_s": warm, "config": asdict(cfg), "fusion": fusion, "rows": rows}, indent=1))
-    cols = ["dataset", "size", "mvs_s_per_view", "mvs_peak_mb", "confirmed_2_views_mean", "faces",
+    cols = ["dataset", "size", "mvs_s_per_view", "mvs_peak_mb", "confirmed_2_views_mean", "faces", "ground_m2",
             "acc@1mm", "comp@1mm", "F@0.5mm", "F@1mm", "F@2mm"]
+    if args.support_plane:
+        cols += ["acc@1mm_above_support", "F@1mm_above_support"]
     print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:
         print("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols) + " |")

@@ -663,14 +663,21 @@ def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
 
 
 @njit(parallel=True, cache=True)
-def consistency_source(depth, Kr, Krinv, R, t, Ks, Ksinv, sdepth, reproj_px, rel_depth, cnt, err_rows, n_rows):
+def consistency_source(depth, Kr, Krinv, R, t, Ks, Ksinv, sdepth, reproj_px, rel_depth, cnt, err_rows, n_rows,
+                       normal, snormal, plane_px, cos_max):
     """The multi-view filter's test of every depth of the reference map ``depth`` against one source's depth map
     ``sdepth`` (pinhole cameras; ``R, t``: source from reference): the point goes into the source, takes the
     source's depth at the nearest pixel and comes back; ``cnt`` += 1 where the reprojection error is below
     ``reproj_px`` pixels and the relative depth difference below ``rel_depth``; ``err_rows`` / ``n_rows`` get
-    each row's sum and number of the agreeing errors (summed by the caller: deterministic)."""
+    each row's sum and number of the agreeing errors (summed by the caller: deterministic).
+
+    Plane test (``plane_px`` > 0; ``normal`` (H, W, 3) and ``snormal`` (hs, ws, 3): each view's normals in its
+    camera frame): a pair that fails the point test also agrees when the reprojection error is below
+    ``plane_px``, each point lies within ``reproj_px`` pixel footprints (depth / Kr[0, 0]) of the other's tangent
+    plane and the normals' cosine is above ``cos_max`` (``mvs.consistency_count``)."""
     H, W = depth.shape
     hs, ws = sdepth.shape
+    plane = plane_px > 0 and normal.shape[0] == H and normal.shape[1] == W and snormal.shape[0] == hs and snormal.shape[1] == ws
     for y in prange(H):
         es = 0.0
         en = 0
@@ -710,5 +717,20 @@ def consistency_source(depth, Kr, Krinv, R, t, Ks, Ksinv, sdepth, reproj_px, rel
                 cnt[y, x] += 1
                 es += e
                 en += 1
+            elif plane and e < plane_px:
+                n0 = np.float64(normal[y, x, 0])
+                n1 = np.float64(normal[y, x, 1])
+                n2 = np.float64(normal[y, x, 2])
+                m0 = np.float64(snormal[j, i, 0])  # the source's normal, into the reference frame: R^T m
+                m1 = np.float64(snormal[j, i, 1])
+                m2 = np.float64(snormal[j, i, 2])
+                s0 = R[0, 0] * m0 + R[1, 0] * m1 + R[2, 0] * m2
+                s1 = R[0, 1] * m0 + R[1, 1] * m1 + R[2, 1] * m2
+                s2 = R[0, 2] * m0 + R[1, 2] * m1 + R[2, 2] * m2
+                D0, D1, D2 = B0 - X0, B1 - X1, B2 - X2
+                tol = reproj_px * d / Kr[0, 0]
+                if (abs(D0 * n0 + D1 * n1 + D2 * n2) < tol and abs(D0 * s0 + D1 * s1 + D2 * s2) < tol
+                        and n0 * s0 + n1 * s1 + n2 * s2 > cos_max):
+                    cnt[y, x] += 1
         err_rows[y] += es
         n_rows[y] += en
