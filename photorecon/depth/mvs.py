@@ -13,8 +13,8 @@ For each reference view:
    (occlusion-robust); winner-take-all, then a parabola through the neighbouring scores for sub-plane depth.
    Confidence = the aggregated ZNCC of the winner (TSDF fusion uses it as the pixel's weight). Work happens
    at most ``max_size`` pixels wide.
-4. **Filtering**: textureless reference windows (PatchMatch) and a confidence threshold (off by default), then
-   geometric consistency: each depth
+4. **Filtering**: confidence threshold (and, optionally, textureless reference windows), then geometric
+   consistency: each depth
    is re-projected into the depth maps of its source views and of the next best ranked views
    (``filter_sources`` in all: a surface hidden from some sources is confirmed by the views that see it) and
    back; it is kept when at least ``min_consistent`` views agree within
@@ -57,10 +57,10 @@ class MVSConfig:
     method: Literal["patchmatch", "sweep"] = field(default="patchmatch", metadata={"flag": "--mvs", "help": "patchmatch: per-pixel depth and normal (ACMH/ACMM, the default); sweep: fronto-parallel plane sweep (a fast preview)"})
     n_sources: int = field(default=8, metadata={"help": "source views per reference view"})
     max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)"})
-    min_confidence: float = field(default=0.0, metadata={"help": "drop depths whose confidence (1 - matching cost) is below this before the geometric filter (0 = the filter alone decides: PatchMatch's cost holds ACMM's geometric term, high where sources are occluded although the depth is right; 0.2 lost 4-5 points of coverage on the synthetic knot and room)"})
-    min_texture: float = field(default=0.01, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation (grey 0..1) is below this: matching has no evidence there (without it and without a confidence threshold, a plain background's depths got through the filter: room F@1% 0.93 -> 0.83); not applied with --planar-prior, which fills such pixels (0 = off)"})
+    min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost) is below this before the geometric filter (0 = the filter alone decides: on the synthetic knot with masks 4 more points of coverage, as PatchMatch's cost holds ACMM's geometric term, high where sources are occluded although the depth is right; but on walnut 2016_10_24 at 800 px F@1mm 0.977 -> 0.969, and without masks a plain background gets through unless --min-texture removes it)"})
+    min_texture: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation (grey 0..1) is below this: matching has no evidence there; with --min-confidence 0, 0.01 keeps a plain background out (synthetic room without masks: mesh F@1% 0.83 -> 0.93) but removes most of a dark, low-contrast object (walnut 2016_10_24: F@1mm 0.977 -> 0.539), so it is off by default; not applied with --planar-prior, which fills such pixels (0 = off)"})
     min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
-    filter_sources: int = field(default=16, metadata={"help": "geometric filter: check each depth against this many views (the matching sources, then the next best ranked; 0 = the matching sources only): a surface that some matching sources cannot see (self-occlusion) is confirmed by the views that do (synthetic knot, true poses: coverage 0.842 -> 0.903 with the other defaults of this change)"})
+    filter_sources: int = field(default=16, metadata={"help": "geometric filter: check each depth against this many views (the matching sources, then the next best ranked; 0 = the matching sources only): a surface that some matching sources cannot see (self-occlusion) is confirmed by the views that do (synthetic knot, true poses: coverage 0.842 -> 0.859; 0.903 with --min-confidence 0 --min-texture 0.01)"})
     consistency_confidence: bool = field(default=True, metadata={"help": "geometric filter: a depth that k views confirm gets at least confidence 1 - 1/k (its TSDF weight): the matching cost alone underrates depths whose sources are partly occluded"})
     reproj_px: float = field(default=2.0, metadata={"help": "geometric filter: max reprojection error, pixels (ACMM: 2)"})
     rel_depth: float = field(default=0.01, metadata={"help": "geometric filter: max relative depth difference"})
