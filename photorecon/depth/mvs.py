@@ -14,10 +14,9 @@ For each reference view:
    Confidence = the aggregated ZNCC of the winner (TSDF fusion uses it as the pixel's weight). Work happens
    at most ``max_size`` pixels wide.
 4. **Filtering**: confidence threshold (and, optionally, textureless reference windows), then geometric
-   consistency: each depth
-   is re-projected into the depth maps of its source views and of the next best ranked views
-   (``filter_sources`` in all: a surface hidden from some sources is confirmed by the views that see it) and
-   back; it is kept when at least ``min_consistent`` views agree within
+   consistency: each depth is re-projected into the depth maps of its source views and of the next best ranked
+   views (``filter_sources`` in all: a surface hidden from some sources is confirmed by the views that see it)
+   and back; it is kept when at least ``min_consistent`` views agree within
    ``reproj_px`` pixels and ``rel_depth`` relative depth, or (PatchMatch's normals) on the surface: the two
    points within ``reproj_px`` pixel footprints of each other's tangent plane, up to ``plane_reproj_px`` pixels
    apart (``consistency_count``; surfaces seen at grazing angles). A depth that k views confirm gets at least
