@@ -13,11 +13,14 @@ For each reference view:
    (occlusion-robust); winner-take-all, then a parabola through the neighbouring scores for sub-plane depth.
    Confidence = the aggregated ZNCC of the winner (TSDF fusion uses it as the pixel's weight). Work happens
    at most ``max_size`` pixels wide.
-4. **Filtering**: confidence threshold, then geometric consistency: each depth is re-projected into every
-   source view's depth map and back; it is kept when at least ``min_consistent`` views agree within
+4. **Filtering**: confidence threshold (and, optionally, textureless reference windows), then geometric
+   consistency: each depth is re-projected into the depth maps of its source views and of the next best ranked
+   views (``filter_sources`` in all: a surface hidden from some sources is confirmed by the views that see it)
+   and back; it is kept when at least ``min_consistent`` views agree within
    ``reproj_px`` pixels and ``rel_depth`` relative depth, or (PatchMatch's normals) on the surface: the two
    points within ``reproj_px`` pixel footprints of each other's tangent plane, up to ``plane_reproj_px`` pixels
-   apart (``consistency_count``; surfaces seen at grazing angles).
+   apart (``consistency_count``; surfaces seen at grazing angles). A depth that k views confirm gets at least
+   confidence 1 - 1/k (``consistency_confidence``), its weight in TSDF fusion.
 
 Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``depth/NAME.conf.npy``
 (float32 confidence in [0, 1]) and ``depth/NAME.png`` (preview).
@@ -53,8 +56,11 @@ class MVSConfig:
     method: Literal["patchmatch", "sweep"] = field(default="patchmatch", metadata={"flag": "--mvs", "help": "patchmatch: per-pixel depth and normal (ACMH/ACMM, the default); sweep: fronto-parallel plane sweep (a fast preview)"})
     n_sources: int = field(default=8, metadata={"help": "source views per reference view"})
     max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)"})
-    min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost) is below this"})
+    min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost) is below this before the geometric filter (0 = the filter alone decides: on the synthetic knot with masks 4 more points of coverage, as PatchMatch's cost holds ACMM's geometric term, high where sources are occluded although the depth is right; but on walnut 2016_10_24 at 800 px F@1mm 0.977 -> 0.969, and without masks a plain background gets through unless --min-texture removes it)"})
+    min_texture: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation (grey 0..1) is below this: matching has no evidence there; with --min-confidence 0, 0.01 keeps a plain background out (synthetic room without masks: mesh F@1% 0.83 -> 0.93) but removes most of a dark, low-contrast object (walnut 2016_10_24: F@1mm 0.977 -> 0.539), so it is off by default; not applied with --planar-prior, which fills such pixels (0 = off)"})
     min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
+    filter_sources: int = field(default=16, metadata={"help": "geometric filter: check each depth against this many views (the matching sources, then the next best ranked; 0 = the matching sources only): a surface that some matching sources cannot see (self-occlusion) is confirmed by the views that do (synthetic knot, true poses: coverage 0.842 -> 0.859; 0.903 with --min-confidence 0 --min-texture 0.01)"})
+    consistency_confidence: bool = field(default=True, metadata={"help": "geometric filter: a depth that k views confirm gets at least confidence 1 - 1/k (its TSDF weight): the matching cost alone underrates depths whose sources are partly occluded"})
     reproj_px: float = field(default=2.0, metadata={"help": "geometric filter: max reprojection error, pixels (ACMM: 2)"})
     rel_depth: float = field(default=0.01, metadata={"help": "geometric filter: max relative depth difference"})
     plane_reproj_px: float = field(default=10.0, metadata={"help": "geometric filter, for depths with normals (patchmatch): a source view also confirms a depth whose reprojection is within this many pixels when each of the two points lies within --reproj-px pixel footprints of the other's tangent plane and their normals agree within 20 degrees; this keeps surfaces seen at grazing angles (the ground in front of a facade), where views agree on the surface but not on the point along their rays (0 = off; compiled, about 1.1x the filter's time without it)"})
@@ -89,7 +95,7 @@ class MVSConfig:
 # "fast" is PatchMatch for small images and previews (the demo): 4 sources, 2 pyramid levels, fewer iterations.
 MVS_PRESETS: dict[str, dict] = {
     "fast": dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=1, pm_final_iterations=1,
-                 min_consistent=1),
+                 min_consistent=1, min_confidence=0.2, filter_sources=0),  # one view confirms: keep the cost threshold
 }
 
 
@@ -386,6 +392,20 @@ def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dic
     return counts
 
 
+def _filter_plan(model, views: dict[str, tuple], cfg: MVSConfig) -> dict[str, list[str]]:
+    """Per planned view, the views its consistency filter checks: its matching sources, then the next best ranked
+    (``select_sources``) up to ``filter_sources`` in all, among the planned views."""
+    if cfg.filter_sources <= 0 or cfg.min_consistent <= 0:
+        return {}
+    wide = dataclasses.replace(cfg, n_sources=max(cfg.filter_sources, cfg.n_sources))
+    by_name = {v.name: v for v in model.views}
+    out = {}
+    for name, (_, srcs, _, _) in views.items():
+        ranked = [s.name for s in select_sources(model, by_name[name], wide) if s.name in views]
+        out[name] = list(dict.fromkeys(srcs + ranked))[: max(cfg.filter_sources, len(srcs))]
+    return out
+
+
 def _triangulated(dataset):
     """The dataset's model with sparse points triangulated from its images with the cameras held fixed
     (given poses come without points); the model unchanged, with a warning, when that fails."""
@@ -412,6 +432,12 @@ class _MVSContext:
     plan: dict[str, tuple[View, list[str], tuple[float, float], np.ndarray]]
     work: Path
     out: Path
+    filter_sources: dict[str, list[str]] = field(default_factory=dict)  # view -> the views its filter checks
+
+
+def _filter_sources(ctx: _MVSContext, name: str) -> list[str]:
+    """The views the consistency filter checks ``name`` against (its matching sources without a longer list)."""
+    return ctx.filter_sources.get(name) or ctx.plan[name][1]
 
 
 def _dataset_view(ctx: _MVSContext, name: str) -> View:
@@ -503,6 +529,10 @@ def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarr
     """A view's unfiltered result: low-confidence, non-finite and masked pixels to 0; to ``work/raw`` (depth last:
     the file that says the view is done)."""
     depth[(conf < ctx.cfg.min_confidence) | ~np.isfinite(depth)] = 0
+    if normal is not None and ctx.cfg.min_texture > 0 and not ctx.cfg.planar_prior:  # PatchMatch: no evidence
+        from .planar import textureless
+
+        depth[textureless(_working_grey(ctx, name), ctx.cfg.pm_radius, ctx.cfg.min_texture)] = 0
     mask = ctx.dataset.mask(_dataset_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
     if mask is not None:
         h, w = depth.shape
@@ -568,9 +598,12 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         before = int((res.depth > 0).sum())
         err_sum, err_n = 0.0, 0
         if cfg.min_consistent > 0:
-            sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0) for s in res.sources}
-            cnt, err_sum, err_n = consistency_count(res, sources, cfg)
+            checked = dataclasses.replace(res, sources=_filter_sources(ctx, name))
+            sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0) for s in checked.sources}
+            cnt, err_sum, err_n = consistency_count(checked, sources, cfg)
             res.depth[cnt < cfg.min_consistent] = 0
+            if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
+                res.confidence = np.maximum(res.confidence, 1.0 - 1.0 / np.maximum(cnt, 1)).astype(np.float32)
         d = res.depth
         info = {"before": before, "after": int((d > 0).sum()), "err_sum": err_sum, "err_n": err_n,
                 "seconds": time.perf_counter() - t0}
@@ -604,7 +637,7 @@ def mvs_tasks(ctx: _MVSContext) -> list[Task]:
                       for n in names]
         last = {n: f"pm{n_rounds - 1}:{n}" for n in names}
     for n in names:
-        deps = [last[n]] + ([last[s] for s in ctx.plan[n][1] if s in last] if cfg.min_consistent > 0 else [])
+        deps = [last[n]] + ([last[s] for s in _filter_sources(ctx, n) if s in last] if cfg.min_consistent > 0 else [])
         tasks.append(Task(f"filter:{n}", ("filter", n), tuple(dict.fromkeys(deps))))
     return tasks
 
@@ -701,7 +734,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if not views:
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
     work = Path(work_dir) if work_dir else out / ".mvs_work"
-    ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out)
+    ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out,
+                      _filter_plan(model, views, cfg))
     t_graph = time.perf_counter()
     results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method})")
     t_graph = time.perf_counter() - t_graph

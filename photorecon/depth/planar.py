@@ -23,7 +23,7 @@ ACMP triangulates the confident pixels in the image and uses each triangle's pla
    deviation below ``TEXTURELESS_STD``) NCC is 0 at any depth, so no photometric threshold can accept a
    plane; there the prior is kept when its cost (photometric, flat, plus ACMM's geometric term through the
    other views' depth maps) is not more than ``MARGIN`` above the current plane's, with cost ``FILL_COST``
-   (confidence 0.25: a low TSDF weight, just above the default ``min_confidence``). The multi-view filter
+   (confidence 0.25: a low TSDF weight, raised by the filter where other views confirm the fill). The multi-view filter
    after PatchMatch then keeps only the fills that ``min_consistent`` other views confirm.
 
 Unlike ACMP, the prior is not a term of the matching cost (that would change the propagation kernel): on
