@@ -55,6 +55,14 @@ def test_checker_window_is_every_other_sample_of_the_grid():
     assert (cy.min(), cy.max(), cx.min(), cx.max()) == (-5, 5, -5, 5)  # the same 11x11 extent
     # both are rows of samples at one x step, which the kernel walks by constant steps
     assert K._window_row(dy, dx) == 6 and K._window_row(cy, cx) == 3
+    # by default the checkerboard is used at the full-resolution level of a 1600x1067 photo, not at half of it
+    from photorecon.cameras import Intrinsics, View
+    from photorecon.depth.patchmatch import level_view
+
+    params = PatchMatchParams(MVSConfig())
+    v = View("v", Intrinsics(1600, 1067, 1400.0, 1400.0, 799.5, 533.0), np.eye(4))
+    assert len(params.at_size(level_view(v, 0)).sdy) == 18 and len(params.at_size(level_view(v, 1)).sdy) == 36
+    assert len(PatchMatchParams(MVSConfig(pm_sparse_min_size=0)).at_size(v).sdy) == 36
 
 
 @pytest.fixture(scope="module")
@@ -78,17 +86,19 @@ def _single_view(ds, i, cfg):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sparse", [0, 1], ids=["grid", "checker"])
+@pytest.mark.parametrize("sparse", [False, True], ids=["grid", "checker"])
 def test_slanted_plane_normals_within_5_degrees(slanted_plane, sparse):
     """Normals and depths of a slanted plane, with the full 11x11 grid window and with its checkerboard half (the
-    default at full resolution, ``pm_sparse_levels``): both within 5 degrees and 1%."""
+    default on images of at least ``pm_sparse_min_size`` pixels): both within 5 degrees and 1%."""
     ds = Dataset.open(slanted_plane)
-    cfg = MVSConfig(**FAST, pm_sparse_levels=sparse)
+    cfg = MVSConfig(**FAST, pm_sparse_min_size=100 if sparse else 0)
     angles, within = [], []
     for i in (1, 5):
         v, srcs, lo, hi, params = _single_view(ds, i, cfg)
-        params = params.at_level(0)
+        params = params.at_size(v)
         assert len(params.sdy) == (18 if sparse else 36)
+        # the default threshold leaves a 200x150 image its full grid
+        assert len(PatchMatchParams(MVSConfig(**FAST)).at_size(v).sdy) == 36
         depth, normal, cost = patchmatch_view(_gray(ds.image(v)), v, [_gray(ds.image(s)) for s in srcs], srcs, lo, hi,
                                               params, 6, seeds=ds.model.points_seen_by(v.name))
         gt = np.load(slanted_plane / "depth" / f"{v.name}.npy")
