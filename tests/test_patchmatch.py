@@ -18,28 +18,51 @@ from photorecon.testing import synth_scene
 FAST = dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=2, pm_final_iterations=1)
 
 
-def test_ncc_kernel_matches_slow_reference():
+@pytest.mark.parametrize("checker", [False, True], ids=["grid", "checker"])
+def test_ncc_kernel_matches_slow_reference(checker):
     rng = np.random.default_rng(0)
     ref = rng.random((40, 50)).astype(np.float32)
     src = rng.random((40, 50)).astype(np.float32)
-    sdy, sdx, sspat = K.window_samples(5, 2, 3.0)
+    sdy, sdx, sspat = K.window_samples(5, 2, 3.0, checker=checker)
+    assert len(sdy) == (18 if checker else 36)
+    # perspective: the kernel's map is linearised at the window's centre; on this noise texture the half window's
+    # NCC moves more with it (largest difference 0.0029 against 0.0007 with the full grid)
     for Hm, tol in ((np.array([[1.02, 0.05, 1.3], [-0.03, 0.97, 0.6], [0, 0, 1.0]]), 1e-5),  # affine: exact
-                    (np.array([[1.0, 0.02, 0.4], [0.01, 1.0, -0.3], [2e-4, -1e-4, 1.0]]), 2e-3)):  # perspective
+                    (np.array([[1.0, 0.02, 0.4], [0.01, 1.0, -0.3], [2e-4, -1e-4, 1.0]]), 4e-3 if checker else 2e-3)):
         for x, y in ((20, 20), (3, 4), (45, 36), (25, 10)):
             got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
-            want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1)
+            want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1, checker=checker)
             assert abs(got - want) < tol, (x, y, got, want)
     # at the reference's corners the window's offsets are clamped, yet the source samples must still be
     # clamped to the source image: a centre next to the source's edge reads no pixel beyond it
     for x, y, tx, ty in ((0, 0, 47.5, 2.0), (0, 0, 3.0, 36.5), (49, 39, -47.0, -36.0), (0, 39, 47.2, -3.0)):
         Hm = np.array([[1.0, 0, tx], [0, 1.0, ty], [0, 0, 1.0]])
         got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
-        want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1)
+        want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1, checker=checker)
         assert abs(got - want) < 1e-5, (x, y, got, want)
     # identical windows cost 0; a window outside the source costs the maximum, 2
     assert K.ncc_at(ref, ref, 20, 20, np.eye(3).ravel(), sdy, sdx, sspat, 0.1, 1e-5) < 1e-6
     far = np.array([[1.0, 0, 500], [0, 1, 0], [0, 0, 1]])
     assert K.ncc_at(ref, src, 20, 20, far.ravel(), sdy, sdx, sspat, 0.1, 1e-5) == 2.0
+
+
+def test_checker_window_is_every_other_sample_of_the_grid():
+    dy, dx, w = K.window_samples(5, 2, 3.0)
+    cy, cx, cw = K.window_samples(5, 2, 3.0, checker=True)
+    grid = {(a, b): c for a, b, c in zip(dy.tolist(), dx.tolist(), w.tolist())}
+    assert {(a, b) for a, b in zip(cy.tolist(), cx.tolist())} == {(a, b) for (a, b) in grid if (a + b) % 4 == 2}
+    assert all(grid[a, b] == c for a, b, c in zip(cy.tolist(), cx.tolist(), cw.tolist()))
+    assert (cy.min(), cy.max(), cx.min(), cx.max()) == (-5, 5, -5, 5)  # the same 11x11 extent
+    # both are rows of samples at one x step, which the kernel walks by constant steps
+    assert K._window_row(dy, dx) == 6 and K._window_row(cy, cx) == 3
+    # by default the checkerboard is used at the full-resolution level of a 1600x1067 photo, not at half of it
+    from photorecon.cameras import Intrinsics, View
+    from photorecon.depth.patchmatch import level_view
+
+    params = PatchMatchParams(MVSConfig())
+    v = View("v", Intrinsics(1600, 1067, 1400.0, 1400.0, 799.5, 533.0), np.eye(4))
+    assert len(params.at_size(level_view(v, 0)).sdy) == 18 and len(params.at_size(level_view(v, 1)).sdy) == 36
+    assert len(PatchMatchParams(MVSConfig(pm_sparse_min_size=0)).at_size(v).sdy) == 36
 
 
 @pytest.fixture(scope="module")
@@ -63,12 +86,19 @@ def _single_view(ds, i, cfg):
 
 
 @pytest.mark.slow
-def test_slanted_plane_normals_within_5_degrees(slanted_plane):
+@pytest.mark.parametrize("sparse", [False, True], ids=["grid", "checker"])
+def test_slanted_plane_normals_within_5_degrees(slanted_plane, sparse):
+    """Normals and depths of a slanted plane, with the full 11x11 grid window and with its checkerboard half (the
+    default on images of at least ``pm_sparse_min_size`` pixels): both within 5 degrees and 1%."""
     ds = Dataset.open(slanted_plane)
-    cfg = MVSConfig(**FAST)
+    cfg = MVSConfig(**FAST, pm_sparse_min_size=100 if sparse else 0)
     angles, within = [], []
     for i in (1, 5):
         v, srcs, lo, hi, params = _single_view(ds, i, cfg)
+        params = params.at_size(v)
+        assert len(params.sdy) == (18 if sparse else 36)
+        # the default threshold leaves a 200x150 image its full grid
+        assert len(PatchMatchParams(MVSConfig(**FAST)).at_size(v).sdy) == 36
         depth, normal, cost = patchmatch_view(_gray(ds.image(v)), v, [_gray(ds.image(s)) for s in srcs], srcs, lo, hi,
                                               params, 6, seeds=ds.model.points_seen_by(v.name))
         gt = np.load(slanted_plane / "depth" / f"{v.name}.npy")

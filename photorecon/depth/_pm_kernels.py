@@ -50,11 +50,15 @@ def sampling_regions(strip: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return rdy, rdx, rn
 
 
-def window_samples(radius: int, stride: int, sigma_space: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Offsets (dy, dx) of a strided square window and their spatial weights exp(-r^2 / (2 sigma_s^2))."""
+def window_samples(radius: int, stride: int, sigma_space: float, checker: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets (dy, dx) of a strided square window, row by row, and their spatial weights
+    exp(-r^2 / (2 sigma_s^2)). ``checker``: every other sample of that grid, as on a checkerboard (half the
+    samples over the same extent; each row keeps every other sample, odd rows shifted by ``stride``)."""
     r = np.arange(-radius, radius + 1, stride)
-    dy, dx = np.meshgrid(r, r, indexing="ij")
-    dy, dx = dy.ravel().astype(np.int32), dx.ravel().astype(np.int32)
+    iy, ix = np.meshgrid(np.arange(len(r)), np.arange(len(r)), indexing="ij")
+    keep = ((iy + ix) % 2 == 0) if checker else np.ones(iy.shape, bool)
+    dy, dx = r[iy[keep]].astype(np.int32), r[ix[keep]].astype(np.int32)
     w = np.exp(-(dy.astype(np.float64) ** 2 + dx ** 2) / (2 * sigma_space ** 2)).astype(np.float32)
     return dy, dx, w
 
@@ -80,23 +84,44 @@ def _seed(seed, it, y, x):
     return s
 
 
+@njit(cache=True)
+def _window_row(sdy, sdx):
+    """Samples per row when the window offsets are rows of that many samples at one constant x step
+    (``window_samples``' grid and its checkerboard: ``_ncc`` walks them by constant steps), else 0."""
+    n = sdy.shape[0]
+    row = 1
+    while row < n and sdy[row] == sdy[0]:
+        row += 1
+    if row < 2 or n % row != 0:
+        return 0
+    step = sdx[1] - sdx[0]
+    for k in range(n):
+        if k % row != 0 and (sdx[k] - sdx[k - 1] != step or sdy[k] != sdy[k - 1]):
+            return 0
+    return row
+
+
 @njit(cache=True, fastmath=True)
-def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
+def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv, row):
     """Fill the reference window's values ``rv``, bilateral weights ``wk`` and sample offsets ``du, dv``
-    (clamped to the image); returns (sum w, mean, var, radius, grid): the radius is the largest |offset| over all
+    (clamped to the image); returns (sum w, mean, var, radius, row): the radius is the largest |offset| over all
     samples (not the first sample's: offsets are clamped at the image border), for ``_ncc``'s bounds shortcut;
-    grid is the samples per side when the window is ``window_samples``' unclamped square grid, else 0."""
+    row: ``row`` (``_window_row``) when no offset was clamped, else 0."""
     H, W = ref.shape
     c = ref[y, x]
     sw = 0.0
     s1 = 0.0
     s2 = 0.0
     rad = 0.0
-    for k in range(sdy.shape[0]):
+    n = sdy.shape[0]
+    clamped = False
+    for k in range(n):
         v = min(max(y + sdy[k], 0), H - 1)
         u = min(max(x + sdx[k], 0), W - 1)
         du[k] = u - x
         dv[k] = v - y
+        if v != y + sdy[k] or u != x + sdx[k]:
+            clamped = True
         rad = max(rad, abs(du[k]), abs(dv[k]))
         val = ref[v, u]
         dc = val - c
@@ -110,12 +135,7 @@ def _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv):
     vr = s2 / sw - mr * mr
     if vr < min_var:
         vr = min_var
-    grid = 0
-    n = sdy.shape[0]
-    side = int(math.sqrt(n) + 0.5)
-    if side > 1 and side * side == n and x + sdx[0] >= 0 and y + sdy[0] >= 0 and x + sdx[n - 1] < W and y + sdy[n - 1] < H:
-        grid = side  # unclamped: du, dv are the row-major square grid of window_samples
-    return sw, mr, vr, rad, grid
+    return sw, mr, vr, rad, 0 if clamped else row
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -149,25 +169,24 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
     ey = (abs(j10) + abs(j11)) * rad
     inside = cx - ex >= 0.0 and cx + ex <= xmax and cy - ey >= 0.0 and cy + ey <= ymax
     if inside and grid > 0:
-        # an unclamped grid window wholly inside the source: walk its rows and columns by constant steps
+        # an unclamped window of rows (``grid`` samples each, one x step) wholly inside the source: walk each
+        # row by constant steps
         step = du[1] - du[0]
-        sxr = cx + j00 * du[0] + j01 * dv[0]
-        syr = cy + j10 * du[0] + j11 * dv[0]
+        stx = j00 * step
+        sty = j10 * step
         k = 0
-        for _ in range(grid):
-            sx = sxr
-            sy = syr
+        for _ in range(du.shape[0] // grid):
+            sx = cx + j00 * du[k] + j01 * dv[k]
+            sy = cy + j10 * du[k] + j11 * dv[k]
             for _ in range(grid):
                 val = _bilerp(img, sx, sy)
                 wv = wk[k] * val
                 s1 += wv
                 s2 += wv * val
                 s12 += wv * rv[k]
-                sx += j00 * step
-                sy += j10 * step
+                sx += stx
+                sy += sty
                 k += 1
-            sxr += j01 * step
-            syr += j11 * step
         return _ncc_finish(s1, s2, s12, sw, mr, vr, min_var)
     for k in range(du.shape[0]):
         sx = cx + j00 * du[k] + j01 * dv[k]
@@ -365,6 +384,7 @@ def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo
     H, W = ref.shape
     S = srcs.shape[0]
     ns = sdy.shape[0]
+    wrow = _window_row(sdy, sdx)
     inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
     for y in prange(H):
         rv = np.empty(ns, np.float64)
@@ -384,7 +404,7 @@ def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo
             if d <= 0 or not _plane_m(d, n0, n1, n2, r0, r1, r2, Kinv, m):
                 cost[y, x] = 2.0 + lam_geo * delta_geo
                 continue
-            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv, wrow)
             if use_geo:
                 _geo_rays(GP, r0, r1, r2, gq)
             for j in range(S):
@@ -428,6 +448,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
     H, W = ref.shape
     S = srcs.shape[0]
     ns = sdy.shape[0]
+    wrow = _window_row(sdy, sdx)
     NR = rdy.shape[0]
     NC = 1 + NR
     inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
@@ -461,7 +482,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                             n_ok += 1
                     if n_ok >= skip_n:  # converged: the other views' depth maps confirm it
                         continue
-            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv, wrow)
             # 1. candidates
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
@@ -626,6 +647,7 @@ def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, d
     H, W = ref.shape
     S = srcs.shape[0]
     ns = sdy.shape[0]
+    wrow = _window_row(sdy, sdx)
     inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
     for y in prange(H):
         rv = np.empty(ns, np.float64)
@@ -643,7 +665,7 @@ def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, d
                 for j in range(S):
                     out[j, y, x] = 2.0
                 continue
-            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv)
+            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv, wrow)
             for j in range(S):
                 _homography(A, b, j, m, h)
                 out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
@@ -654,11 +676,12 @@ def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
     """The kernel's cost of one reference pixel through the homography ``h`` (for tests against the slow
     reference ``patchmatch.ncc_cost_reference``)."""
     ns = sdy.shape[0]
+    wrow = _window_row(sdy, sdx)
     rv = np.empty(ns, np.float64)
     wk = np.empty(ns, np.float64)
     du = np.empty(ns, np.float64)
     dv = np.empty(ns, np.float64)
-    sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv)
+    sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv, wrow)
     return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
 
 
