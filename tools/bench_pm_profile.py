@@ -24,7 +24,7 @@ from photorecon.depth import _pm_kernels, mvs, patchmatch
 from photorecon.io.dataset import Dataset
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_pm_variants import parse_variant  # noqa: E402
+from bench_pm_variants import parse_variant, scene_root  # noqa: E402
 from bench_mvs import scores, warm_up  # noqa: E402
 
 ACC: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0])  # key -> [cpu s, wall s, calls]
@@ -76,12 +76,7 @@ def main() -> int:
     args = ap.parse_args()
     progress.set_enabled(False)
     W, H = (int(s) for s in args.size.split("x"))
-    root = Path(tempfile.gettempdir()) / f"pm_variants_blob_{W}x{H}_9"
-    if not (root / "scene.json").is_file():
-        from photorecon.synthetic import SynthConfig, synthesize
-
-        synthesize(SynthConfig(scene="blob", rig="ring", views=9, width=W, height=H, elevation=15, points=4000), root,
-                   overwrite=True)
+    root = scene_root("blob", W, H, 9)
     ds = Dataset.open(root)
     n = len(ds.views)
     warm = warm_up()

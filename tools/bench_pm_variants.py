@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import argparse
 import ast
-import dataclasses
 import json
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 from photorecon import progress
 from photorecon.depth.mvs import MVS_PRESETS, MVSConfig, run_mvs
@@ -31,6 +29,17 @@ from photorecon.synthetic import SynthConfig, synthesize
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_mvs import _round_seconds, scores, warm_up  # noqa: E402
+
+
+def scene_root(scene: str, W: int, H: int, views: int) -> Path:
+    """The benchmark scene, synthesized once into $TMPDIR and reused: ``blob`` on a ring rig (the speed scene),
+    or a named scene on the sphere rig (tools/bench_mvs.py's accuracy section)."""
+    root = Path(tempfile.gettempdir()) / f"pm_variants_{scene}_{W}x{H}_{views}"
+    if not (root / "scene.json").is_file():
+        sc = (SynthConfig(scene="blob", rig="ring", views=views, width=W, height=H, elevation=15, points=4000)
+              if scene == "blob" else SynthConfig(scene=scene, views=views, width=W, height=H, points=3000))
+        synthesize(sc, root, overwrite=True)
+    return root
 
 
 def parse_variant(text: str) -> MVSConfig:
@@ -63,12 +72,7 @@ def main() -> int:
     args = ap.parse_args()
     progress.set_enabled(False)
     W, H = (int(s) for s in args.size.split("x"))
-    root = Path(tempfile.gettempdir()) / f"pm_variants_{args.scene}_{W}x{H}_{args.views}"
-    if not (root / "scene.json").is_file():
-        sc = (SynthConfig(scene="blob", rig="ring", views=args.views, width=W, height=H, elevation=15, points=4000)
-              if args.scene == "blob" else
-              SynthConfig(scene=args.scene, views=args.views, width=W, height=H, points=3000))
-        synthesize(sc, root, overwrite=True)
+    root = scene_root(args.scene, W, H, args.views)
     ds = Dataset.open(root)
     if args.no_masks:
         ds.masks_dir = root / "no_masks"  # an empty folder: no view has a mask
