@@ -2,11 +2,11 @@
 atomically, timing and peak memory recorded once."""
 import json
 import os
+import subprocess
+import sys
 
-import numpy as np
 import pytest
 
-from photorecon.resources import measure, reset_peak
 from photorecon.stages import Stages, atomic_dir, fingerprint
 
 
@@ -118,15 +118,28 @@ def test_atomic_dir_replaces_on_success_only(tmp_path):
     assert sorted(p.name for p in dst.iterdir()) == ["c.npy"]
 
 
-def test_nested_measure_keeps_the_outer_peak():
-    if not reset_peak():
-        pytest.skip("this kernel cannot reset the peak resident set")
-    stats = {}
+_NESTED_MEASURE = """
+import json
+import numpy as np
+from photorecon.resources import measure, reset_peak
+stats = {}
+if reset_peak():
     with measure(stats, "outer"):
         big = np.ones(300 * 2**20 // 8)  # 300 MB, freed before the inner block resets the peak
         del big
         with measure(stats, "inner"):
             small = np.ones(50 * 2**20 // 8)
             del small
+print(json.dumps(stats))
+"""
+
+
+def test_nested_measure_keeps_the_outer_peak():
+    # In a fresh interpreter: in the suite's long-lived process the allocator may keep freed memory resident (the
+    # 300 MB then reuse it and the resident set never rises), which says nothing about measure().
+    out = subprocess.run([sys.executable, "-c", _NESTED_MEASURE], capture_output=True, text=True, check=True)
+    stats = json.loads(out.stdout.strip().splitlines()[-1])
+    if not stats:
+        pytest.skip("this kernel cannot reset the peak resident set")
     assert stats["outer"]["peak_mb"] >= stats["inner"]["peak_mb"] + 200
     assert stats["inner"]["peak_mb"] >= 50
