@@ -18,17 +18,15 @@ import ast
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-
 from photorecon import progress
-from photorecon.depth.mvs import MVS_PRESETS, MVSConfig, run_mvs
+from photorecon.depth.mvs import MVS_PRESETS, MVSConfig
 from photorecon.io.dataset import Dataset
 from photorecon.synthetic import SynthConfig, synthesize
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_mvs import _round_seconds, scores, warm_up  # noqa: E402
+from bench_mvs import run, warm_up  # noqa: E402
 
 
 def scene_root(scene: str, W: int, H: int, views: int) -> Path:
@@ -86,12 +84,10 @@ def main() -> int:
         for rep in range(args.reps):
             for label, cfg in cfgs:
                 out = Path(t) / f"out{rep}_{len(rows)}"
-                t0, c0 = time.perf_counter(), time.process_time()
-                rep_ = run_mvs(ds, out, cfg)
-                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-                w, c = scores(ds, out, root)
-                row = {"variant": label, "rep": rep, "cpu_s_per_view": cpu / n, "wall_s_per_view": wall / n,
-                       "within_1pct": w, "coverage": c, "round_s_per_view": _round_seconds(rep_.to_dict(), n)}
+                r = run(ds, root, out, cfg)
+                row = {"variant": label, "rep": rep, "cpu_s_per_view": r["cpu_s_per_view"],
+                       "wall_s_per_view": r["s_per_view"], "within_1pct": r["within_1pct"], "coverage": r["coverage"],
+                       "round_s_per_view": r["round_s_per_view"]}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
                 if args.json:

@@ -103,7 +103,7 @@ MVS_PRESETS: dict[str, dict] = {
 @dataclass
 class DepthResult:
     depth: np.ndarray  # (h, w) float32 at working resolution
-    confidence: np.ndarray  # (h, w) float32 in [0, 1]
+    confidence: np.ndarray | None  # (h, w) float32 in [0, 1]; None for a filter's source view (not read)
     view: View  # the reference view at working resolution
     sources: list[str]
     normal: np.ndarray | None = None  # (h, w, 3) float16 unit normals, reference camera frame (patchmatch)
@@ -360,6 +360,7 @@ def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], 
     err_rows = np.zeros(d.shape[0], np.float64)
     n_rows = np.zeros(d.shape[0], np.int64)
     Kr = np.asarray(r.view.intrinsics.K, np.float64)
+    Kr_inv = np.linalg.inv(Kr)
     world_from_ref = invert_rigid(r.view.cam_from_world)
     none = np.zeros((1, 1, 3), np.float32)
     plane = cfg.plane_reproj_px > 0 and r.normal is not None
@@ -372,7 +373,7 @@ def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], 
         rel = s.view.cam_from_world @ world_from_ref
         Ks = np.asarray(s.view.intrinsics.K, np.float64)
         snormal = np.ascontiguousarray(s.normal, np.float32) if plane and s.normal is not None else none
-        k.consistency_source(d, Kr, np.linalg.inv(Kr), np.ascontiguousarray(rel[:3, :3]), np.ascontiguousarray(rel[:3, 3]),
+        k.consistency_source(d, Kr, Kr_inv, np.ascontiguousarray(rel[:3, :3]), np.ascontiguousarray(rel[:3, 3]),
                              Ks, np.linalg.inv(Ks), np.ascontiguousarray(s.depth, np.float32), float(cfg.reproj_px),
                              float(cfg.rel_depth), cnt, err_rows, n_rows, normal, snormal,
                              float(cfg.plane_reproj_px) if plane else 0.0, cos_max)
@@ -534,7 +535,7 @@ def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarr
         from .planar import textureless
 
         depth[textureless(_working_grey(ctx, name), ctx.cfg.pm_radius, ctx.cfg.min_texture)] = 0
-    mask = ctx.dataset.mask(_dataset_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
+    mask = _level_mask(ctx, name, _plan_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
     if mask is not None:
         h, w = depth.shape
         if mask.shape != (h, w):
@@ -546,10 +547,12 @@ def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarr
     _save(_raw_path(ctx, name, "depth"), depth.astype(np.float32))
 
 
-def _raw_result(ctx: _MVSContext, name: str, normal: bool = False) -> DepthResult:
+def _raw_result(ctx: _MVSContext, name: str, normal: bool = False, confidence: bool = True) -> DepthResult:
+    """View ``name``'s unfiltered result from ``work/raw``; ``confidence=False`` for a source of the filter, which
+    reads only its depth (and normals)."""
     n_path = _raw_path(ctx, name, "normal")
-    return DepthResult(_load(_raw_path(ctx, name, "depth")), _load(_raw_path(ctx, name, "conf")), ctx.plan[name][0],
-                       ctx.plan[name][1], _load(n_path) if normal and n_path.is_file() else None)
+    return DepthResult(_load(_raw_path(ctx, name, "depth")), _load(_raw_path(ctx, name, "conf")) if confidence else None,
+                       ctx.plan[name][0], ctx.plan[name][1], _load(n_path) if normal and n_path.is_file() else None)
 
 
 def _pm_jobs(ctx: _MVSContext) -> dict:
@@ -600,7 +603,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         err_sum, err_n = 0.0, 0
         if cfg.min_consistent > 0:
             checked = dataclasses.replace(res, sources=_filter_sources(ctx, name))
-            sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0) for s in checked.sources}
+            sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0, confidence=False) for s in checked.sources}
             cnt, err_sum, err_n = consistency_count(checked, sources, cfg)
             res.depth[cnt < cfg.min_consistent] = 0
             if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
