@@ -34,7 +34,7 @@ from photorecon import progress
 from photorecon.depth.mvs import MVSConfig, run_mvs
 from photorecon.fusion import FusionConfig, fuse, load_frames
 from photorecon.io.dataset import Dataset
-from photorecon.mesh import CleanConfig, clean, export
+from photorecon.mesh import CleanConfig, clean, export, ransac_plane
 from photorecon.metrics import cloud_metrics, load_reference
 from photorecon.preview import render_preview
 from photorecon.resources import peak_bytes, reset_peak
@@ -60,26 +60,6 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
-def _ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,
-                  max_tilt_deg: float = 90.0):
-    """(unit normal n, offset c) of the plane n . X = c through three of the points ``P`` (N, 3) that has the
-    most points within ``tol``, and that count; with ``up``, only planes whose normal is within
-    ``max_tilt_deg`` of it. (None, 0) when no plane qualifies."""
-    best, best_k = None, 0
-    for _ in range(iters):
-        a, b, c = P[rng.choice(len(P), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        if np.linalg.norm(n) < 1e-15:
-            continue
-        n /= np.linalg.norm(n)
-        if up is not None and abs(n @ up) < np.cos(np.radians(max_tilt_deg)):
-            continue
-        k = int((np.abs(P @ n - n @ a) < tol).sum())
-        if k > best_k:
-            best, best_k = (n, float(n @ a)), k
-    return best, best_k
-
-
 def ground_plane(frames, rows: float = 0.15, tol: float = 0.05, max_tilt_deg: float = 35.0, iters: int = 1000,
                  seed: int = 0):
     """The ground in front of a facade: a RANSAC plane (unit normal n, offset c: n . X = c, n towards the
@@ -100,7 +80,7 @@ def ground_plane(frames, rows: float = 0.15, tol: float = 0.05, max_tilt_deg: fl
     P = np.concatenate(pts)
     rng = np.random.default_rng(seed)
     P = P[rng.choice(len(P), min(len(P), 200_000), replace=False)]
-    (n, c), _ = _ransac_plane(P, tol, iters, rng, up, max_tilt_deg)
+    (n, c), _ = ransac_plane(P, tol, iters, rng, up, max_tilt_deg)
     inl = P[np.abs(P @ n - c) < tol]
     centre = inl.mean(0)
     n = np.linalg.svd(inl - centre, full_matrices=False)[2][2]
@@ -137,7 +117,7 @@ def support_plane(mesh, reference: np.ndarray, taus=TAUS, iters: int = 1000, see
         return None
     rng = np.random.default_rng(seed)
     tol = 0.5 * min(taus)
-    best, best_k = _ransac_plane(far, tol, iters, rng)
+    best, best_k = ransac_plane(far, tol, iters, rng)
     if best is None or best_k < 0.01 * len(pts):
         return None
     n, c = best
