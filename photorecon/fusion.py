@@ -1252,5 +1252,6 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
              "invented", len(frames), len(mesh.vertices), len(mesh.faces), surface["watertight"],
              surface["boundary_edges"], 100 * surface["invented_fraction"])
+    support = {k: v for k, v in mesh.metadata.items() if k.startswith("support_")}  # --object: what was removed
     return mesh, {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
-                  "mesher": cfg.mesher, **surface}
+                  "mesher": cfg.mesher, **surface, **support}

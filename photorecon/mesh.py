@@ -33,7 +33,7 @@ class CleanConfig:
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
     object: bool = field(default=False, metadata={"help": "object capture (an object standing on a table or turntable): find the support plane (all cameras on one side of it, the point the cameras look at on their side, a large flat part of the surface around under that point) and remove it and everything below it, keeping the object alone; one line reports what was removed (default off: a scene's ground stays)"})
-    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = from the plane's own flatness: the spread of the surface on it, at least 2 voxels)"})
+    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = 2 TSDF voxels, or 1/500 of the surface's extent without a voxel size)"})
 
 
 def to_open3d(mesh: trimesh.Trimesh):

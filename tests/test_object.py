@@ -93,3 +93,14 @@ def test_object_keeps_a_ground_seen_from_both_sides():
     out = clean(fused, CleanConfig(object=True), cameras=views)
     assert "support_normal" not in out.metadata
     assert _near_plane_area(out, 0.05) > 0.5
+
+
+def test_every_command_help_renders_and_offers_object(capsys):
+    """``--help`` of the commands that clean a mesh renders (a bare % in a setting's help crashed argparse on
+    ``reconstruct --help``) and offers --object."""
+    from photorecon.cli import main
+
+    for cmd in ("reconstruct", "fuse"):
+        with pytest.raises(SystemExit) as e:
+            main([cmd, "--help"])
+        assert e.value.code == 0 and "--object" in capsys.readouterr().out
