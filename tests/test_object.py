@@ -104,3 +104,24 @@ def test_every_command_help_renders_and_offers_object(capsys):
         with pytest.raises(SystemExit) as e:
             main([cmd, "--help"])
         assert e.value.code == 0 and "--object" in capsys.readouterr().out
+
+
+def test_fuse_command_with_object_leaves_the_object(tmp_path):
+    """``photorecon fuse DATA -o OUT --object`` on a rendered object on a table: OUT/mesh.ply has no table."""
+    from photorecon.cli import main
+    from photorecon.mesh import load_mesh
+    from photorecon.synthetic import synthesize
+
+    scene = trimesh.util.concatenate([_object(), _table()])
+    scene.export(tmp_path / "scene.ply")
+    synthesize(SynthConfig(mesh=str(tmp_path / "scene.ply"), rig="ring", views=8, width=128, height=96,
+                           radius=2.6, elevation=25.0, points=500), tmp_path / "data")
+    # the scene was normalised: the table top in the dataset's world frame (its corners: the largest |x|)
+    gt = trimesh.load(tmp_path / "data" / "gt_mesh.ply", process=False)
+    corners = gt.vertices[np.abs(gt.vertices[:, 0]) > 0.999 * np.abs(gt.vertices[:, 0]).max()]
+    z_top = float(corners[:, 2].max())
+    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "out"), "--object", "-q"]) == 0
+    assert load_mesh(tmp_path / "out" / "mesh.ply").triangles_center[:, 2].min() > z_top
+    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "plain"), "-q"]) == 0
+    plain = load_mesh(tmp_path / "plain" / "mesh.ply")
+    assert plain.area_faces[np.abs(plain.triangles_center[:, 2] - z_top) < 0.01].sum() > 0.5  # the table, by default
