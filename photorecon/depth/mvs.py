@@ -64,7 +64,6 @@ class MVSConfig:
     reproj_px: float = field(default=2.0, metadata={"help": "geometric filter: max reprojection error, pixels (ACMM: 2)"})
     rel_depth: float = field(default=0.01, metadata={"help": "geometric filter: max relative depth difference"})
     plane_reproj_px: float = field(default=10.0, metadata={"help": "geometric filter, for depths with normals (patchmatch): a source view also confirms a depth whose reprojection is within this many pixels when each of the two points lies within --reproj-px pixel footprints of the other's tangent plane and their normals agree within 20 degrees; this keeps surfaces seen at grazing angles (the ground in front of a facade), where views agree on the surface but not on the point along their rays (0 = off; compiled, about 1.1x the filter's time without it)"})
-    plane_flat_px: int = field(default=0, metadata={"help": "geometric filter, plane test: only where the reference's own depth map is flat around the pixel (the points this many pixels either side of it, along both image axes, lie on a line with it within --reproj-px pixel footprints): on a plane (the ground) they do, on a curved surface seen at a grazing angle (the top of an object seen by a low ring) they do not, and there the views' agreement on the tangent plane says nothing about the point (0 = off)"})
     depth_near: float | None = field(default=None, metadata={"help": "depth range: the sparse points' 1st percentile times this (default: 0.6 for patchmatch, whose search is continuous; 1/1.1 for the sweep, whose planes get coarser as the range grows)"})
     depth_far: float | None = field(default=None, metadata={"help": "depth range: the sparse points' 99th percentile times this (default: 1.25 for patchmatch, 1.1 for the sweep)"})
     min_angle_deg: float = field(default=2.0, metadata={"help": "view selection: minimum triangulation angle"})
@@ -281,36 +280,6 @@ def _nearest_pixel(uv: np.ndarray, z: np.ndarray, intr) -> np.ndarray:
 PLANE_MAX_ANGLE_DEG = 20.0  # the plane test's largest angle between the two views' normals
 
 
-def locally_flat(depth: np.ndarray, intr, step: int, tol_footprints: float) -> np.ndarray:
-    """(h, w) bool: pixels whose depth map is flat around them: along each image axis, the world points ``step``
-    pixels either side and the pixel's own lie on one line within ``tol_footprints`` pixel footprints (z / f)
-    of each other (the middle one's distance to the line through the outer two). Points on a plane seen along
-    an image line are collinear whatever the viewing angle; on a curved surface the middle one bulges off the
-    chord, most where the surface is seen at a grazing angle. Pixels without both neighbours valid are not
-    flat. ``intr``: pinhole intrinsics at the depth map's resolution (camera frame, OpenCV axes)."""
-    d = np.asarray(depth, np.float32)
-    h, w = d.shape
-    u = (np.arange(w, dtype=np.float32) - np.float32(intr.cx)) / np.float32(intr.fx)
-    v = (np.arange(h, dtype=np.float32) - np.float32(intr.cy)) / np.float32(intr.fy)
-    X = np.stack([d * u[None, :], d * v[:, None], d], -1)
-    tol = np.float32(tol_footprints) * d / np.float32(intr.fx)
-    flat = d > 0
-    k = int(step)
-    for axis in (0, 1):
-        a = np.zeros_like(X)
-        b = np.zeros_like(X)
-        if axis == 1:
-            a[:, k:], b[:, :-k] = X[:, :-k], X[:, k:]
-        else:
-            a[k:], b[:-k] = X[:-k], X[k:]
-        ok = (a[..., 2] > 0) & (b[..., 2] > 0)
-        chord = b - a
-        L = np.linalg.norm(chord, axis=-1)
-        off = np.linalg.norm(np.cross(X - a, chord), axis=-1) / np.maximum(L, 1e-12)
-        flat &= ok & (off <= tol)
-    return flat
-
-
 def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
     """For each depth of ``r``: how many of its ``sources`` (name -> result) confirm it. The depth's world point
     P goes into the source, whose depth at the nearest pixel gives its point Q. A source confirms P when
@@ -333,15 +302,6 @@ def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSC
     return _consistency_count_any(r, sources, cfg)
 
 
-def _plane_test_normals(r: DepthResult, cfg: MVSConfig) -> np.ndarray:
-    """The reference's normals for the plane test: zero (no plane test there) where ``plane_flat_px`` > 0 and its
-    depth map is not ``locally_flat``."""
-    if cfg.plane_flat_px <= 0:
-        return r.normal
-    flat = locally_flat(r.depth, r.view.intrinsics, cfg.plane_flat_px, cfg.reproj_px)
-    return np.where(flat[..., None], r.normal, 0)
-
-
 def _consistency_count_any(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
     """``consistency_count`` for any camera model and the plane test (numpy; distortion through
     ``cameras.project``)."""
@@ -355,7 +315,7 @@ def _consistency_count_any(r: DepthResult, sources: dict[str, DepthResult], cfg:
     plane = cfg.plane_reproj_px > 0 and r.normal is not None
     if plane:
         tol = cfg.reproj_px * d_ref / r.view.intrinsics.fx  # reproj_px pixel footprints
-        n_ref = _plane_test_normals(r, cfg)[valid].astype(np.float64) @ T[:3, :3]  # camera -> world
+        n_ref = r.normal[valid].astype(np.float64) @ T[:3, :3]  # camera -> world
         cos_max = np.cos(np.radians(PLANE_MAX_ANGLE_DEG))
     for sname in r.sources:
         s = sources.get(sname)
@@ -404,7 +364,7 @@ def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], 
     world_from_ref = invert_rigid(r.view.cam_from_world)
     none = np.zeros((1, 1, 3), np.float32)
     plane = cfg.plane_reproj_px > 0 and r.normal is not None
-    normal = np.ascontiguousarray(_plane_test_normals(r, cfg), np.float32) if plane else none
+    normal = np.ascontiguousarray(r.normal, np.float32) if plane else none
     cos_max = float(np.cos(np.radians(PLANE_MAX_ANGLE_DEG)))
     for sname in r.sources:
         s = sources.get(sname)
