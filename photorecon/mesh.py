@@ -33,7 +33,7 @@ class CleanConfig:
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
     object: bool = field(default=False, metadata={"help": "object capture (an object standing on a table or turntable): find the support plane (all cameras on one side of it, the point the cameras look at on their side, a large flat part of the surface around under that point) and remove it and everything below it, keeping the object alone; one line reports what was removed (default off: a scene's ground stays)"})
-    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = 2 TSDF voxels, or 1/500 of the surface's extent without a voxel size)"})
+    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = the support's own thickness as fused: 1.25 x how far its flat surface reaches below the plane (99th percentile), at least 2 TSDF voxels)"})
 
 
 def to_open3d(mesh: trimesh.Trimesh):
@@ -288,8 +288,9 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
                    seed: int = 0) -> dict | None:
     """Object capture: remove from the Open3D mesh ``m`` (in place) the plane the object stands on
     (``find_support_plane``, fitted to ``n_samples`` area-uniform surface samples, inliers within 2 voxels, or
-    1/500 of the samples' extent without ``voxel``) and every triangle whose centre lies below ``cut`` above
-    it (0: 2 voxels). Logs one line; returns what was removed (metadata: ``support_normal``,
+    1/1000 of the samples' extent without ``voxel``) and every triangle whose centre lies below ``cut`` above
+    it (0: the support's own thickness as fused, 1.25 x the 99th percentile depth of its flat samples below the
+    plane, mirrored: nothing of the object lies below it; at least 2 voxels). Logs one line; returns what was removed (metadata: ``support_normal``,
     ``support_offset``, ``support_cut``, ``support_removed_faces``, ``support_removed_area``) or None (logged)
     when no support plane is found."""
     if cameras is None or not len(cameras):
@@ -318,8 +319,11 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
                  "side and the object on theirs); nothing removed")
         return None
     n, c = plane
-    if not cut > 0:
-        cut = 2 * unit
+    if not cut > 0:  # the fused support is not flat (a bowed board, noise): mirror its spread below the plane
+        h_pts = pts @ n - c
+        under = (h_pts < 0) & (h_pts > -10 * unit) & (np.abs(nrm @ n) > np.cos(np.radians(30.0)))
+        spread = float(np.percentile(-h_pts[under], 99)) if under.sum() >= 100 else 0.0
+        cut = max(2 * unit, 1.25 * spread)
     h_tri = tri.mean(1) @ n - c
     drop = h_tri < cut
     removed = float(area[drop].sum())
