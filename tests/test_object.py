@@ -125,3 +125,13 @@ def test_fuse_command_with_object_leaves_the_object(tmp_path):
     assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "plain"), "-q"]) == 0
     plain = load_mesh(tmp_path / "plain" / "mesh.ply")
     assert plain.area_faces[np.abs(plain.triangles_center[:, 2] - z_top) < 0.01].sum() > 0.5  # the table, by default
+
+
+def test_report_html_says_what_object_removed(tmp_path):
+    from photorecon.report import write_html_report
+
+    mesh = {"faces": 10, "support_normal": "0.00000,0.00000,1.00000", "support_offset": -0.4, "support_cut": 0.045,
+            "support_removed_faces": 1234, "support_removed_area": 2.5}
+    page = write_html_report(tmp_path, {"mesh": mesh}).read_text()
+    assert "support plane removed" in page and "1234 faces, area 2.5" in page
+    assert "support plane removed" not in write_html_report(tmp_path, {"mesh": {"faces": 10}}).read_text()
