@@ -228,7 +228,7 @@ def find_support_plane(points: np.ndarray, normals: np.ndarray, cameras, tol: fl
     """The plane an object stands on, from surface samples ``points`` (N, 3) and the ``cameras`` (Views, or
     camera centres (M, 3)) that photographed it: a RANSAC plane (inliers within ``tol``) with every camera
     centre strictly on one side, the point the cameras look at (``_look_at_point``; else the samples' median)
-    on the cameras' side, at most ``max_below`` of the surface off the plane below it (the object stands on
+    on the cameras' side by more than ``tol`` (a flat object the cameras look at is not its own support), at most ``max_below`` of the surface off the plane below it (the object stands on
     it; a plane through the object has much of it on each side), at least ``min_fraction`` of the samples on
     it, and inliers (points within ``tol`` whose surface ``normals`` (N, 3) are within 30 degrees of the
     plane's: a flat area, not a curved side the plane cuts) around the foot of the look-at point in at least ``min_sectors`` of ``sectors`` directions
@@ -247,7 +247,7 @@ def find_support_plane(points: np.ndarray, normals: np.ndarray, cameras, tol: fl
     def accept(n, c):
         h = cams @ n - c
         side = np.sign(np.median(h))
-        if side == 0 or not np.all(h * side > tol) or (target @ n - c) * side <= 0:
+        if side == 0 or not np.all(h * side > tol) or (target @ n - c) * side <= tol:
             return False
         hp = (probe @ n - c) * side
         below, above = int((hp < -tol).sum()), int((hp > tol).sum())

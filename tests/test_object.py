@@ -135,3 +135,11 @@ def test_report_html_says_what_object_removed(tmp_path):
     page = write_html_report(tmp_path, {"mesh": mesh}).read_text()
     assert "support plane removed" in page and "1234 faces, area 2.5" in page
     assert "support plane removed" not in write_html_report(tmp_path, {"mesh": {"faces": 10}}).read_text()
+
+
+def test_object_keeps_a_flat_object_the_cameras_look_at(ring):
+    """A flat object (a board, a painting) with the cameras looking at a point on it: it is not its own support."""
+    board = trimesh.creation.box(extents=(1.2, 0.8, 0.02)).apply_translation((0, 0, -0.01))  # top at z = 0
+    fused = _fused(board, ring)
+    out = clean(fused, CleanConfig(object=True), cameras=ring)
+    assert "support_normal" not in out.metadata and len(out.faces) == len(clean(fused, cameras=ring).faces)
