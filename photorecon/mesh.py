@@ -32,6 +32,8 @@ class CleanConfig:
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)"})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
+    object: bool = field(default=False, metadata={"help": "object capture (an object standing on a table or turntable): find the support plane (all cameras on one side of it, the point the cameras look at on their side, a large flat part of the surface around under that point) and remove it and everything below it, keeping the object alone; one line reports what was removed (default off: a scene's ground stays)"})
+    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = the support's own thickness as fused: 1.25 x how far its flat surface reaches below the plane (99th percentile), at least 2 TSDF voxels)"})
 
 
 def to_open3d(mesh: trimesh.Trimesh):
@@ -96,6 +98,9 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
         if np.any(hi <= lo):
             raise BadArgumentError(f"crop: expected min < max on every axis, got {list(cfg.crop)}")
         m = m.crop(o3d.geometry.AxisAlignedBoundingBox(lo, hi))
+    support = None
+    if cfg.object and len(m.triangles):
+        support = remove_support(m, cameras, mesh.metadata.get("voxel_size"), cfg.object_cut)
     if len(m.triangles) and min_component > 0:
         drop = floater_mask(m, min_component, cfg.floater_distance, min(cfg.min_detail, min_component), cameras)
         if drop.any():
@@ -110,6 +115,8 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     if hole > 0:
         out = fill_holes(out, hole)
     out.metadata.update({k: v for k, v in mesh.metadata.items() if isinstance(v, (bool, int, float, str))})
+    if support is not None:
+        out.metadata.update(support)
     if cfg.cluster_voxel > 0:
         out = from_open3d(to_open3d(out).simplify_vertex_clustering(cfg.cluster_voxel))
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
@@ -165,6 +172,170 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     if n_drop:
         log.debug("cleaning: %d of %d components dropped (debris or floaters)", n_drop, n)
     return drop[labels]
+
+
+def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,
+                 max_tilt_deg: float = 90.0, accept=None, normals: np.ndarray | None = None,
+                 max_normal_deg: float = 30.0):
+    """(unit normal n, offset c) of the plane n . X = c through three of the points ``P`` (N, 3) that has the
+    most points within ``tol``, and that count; with ``up``, only planes whose normal is within
+    ``max_tilt_deg`` of it; with ``accept(n, c)``, only planes it returns True for (either sign of n: the
+    caller orients); with ``normals`` (N, 3) unit surface normals at the points, only points whose normal is
+    within ``max_normal_deg`` of the plane's (either way) count: a flat area, not a curved surface that the
+    plane crosses. (None, 0) when no plane qualifies."""
+    best, best_k = None, 0
+    min_cos = np.cos(np.radians(max_normal_deg))
+    for _ in range(iters):
+        a, b, c = P[rng.choice(len(P), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-15:
+            continue
+        n /= np.linalg.norm(n)
+        if up is not None and abs(n @ up) < np.cos(np.radians(max_tilt_deg)):
+            continue
+        if accept is not None and not accept(n, float(n @ a)):
+            continue
+        near = np.abs(P @ n - n @ a) < tol
+        if normals is not None:
+            near &= np.abs(normals @ n) > min_cos
+        k = int(near.sum())
+        if k > best_k:
+            best, best_k = (n, float(n @ a)), k
+    return best, best_k
+
+
+def _look_at_point(cameras) -> np.ndarray | None:
+    """The point nearest (least squares) to every camera's optical axis: what a ring or dome of cameras looks
+    at. None without ``View``s, or when the axes are nearly parallel (a forward-facing set)."""
+    views = [c for c in cameras if hasattr(c, "cam_from_world")]
+    if len(views) < 2:
+        return None
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for v in views:
+        d = np.asarray(v.cam_from_world, float)[2, :3]  # the optical axis (camera z) in world coordinates
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ v.center
+    w = np.linalg.eigvalsh(A)
+    if w[0] < 0.05 * w[-1]:
+        return None
+    return np.linalg.solve(A, b)
+
+
+def find_support_plane(points: np.ndarray, normals: np.ndarray, cameras, tol: float, min_fraction: float = 0.05,
+                       max_below: float = 0.2, iters: int = 1000, sectors: int = 12, min_sectors: int = 6,
+                       seed: int = 0):
+    """The plane an object stands on, from surface samples ``points`` (N, 3) and the ``cameras`` (Views, or
+    camera centres (M, 3)) that photographed it: a RANSAC plane (inliers within ``tol``) with every camera
+    centre strictly on one side, the point the cameras look at (``_look_at_point``; else the samples' median)
+    on the cameras' side by more than ``tol`` (a flat object the cameras look at is not its own support), at most ``max_below`` of the surface off the plane below it (the object stands on
+    it; a plane through the object has much of it on each side), at least ``min_fraction`` of the samples on
+    it, and inliers (points within ``tol`` whose surface ``normals`` (N, 3) are within 30 degrees of the
+    plane's: a flat area, not a curved side the plane cuts) around the foot of the look-at point in at least ``min_sectors`` of ``sectors`` directions
+    (a support under the object, not a flat face of it or a wall beside it). Refined by least squares on the
+    inliers. Returns (n, c) with n towards the cameras (n . X = c on the plane, > c above it), or None."""
+    P = np.asarray(points, np.float64)
+    cams = np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
+    if len(P) < 100 or len(cams) < 2:
+        return None
+    target = _look_at_point(cameras)
+    if target is None:
+        target = np.median(P, axis=0)
+    rng = np.random.default_rng(seed)
+    probe = P[rng.choice(len(P), min(len(P), 5000), replace=False)]
+
+    def accept(n, c):
+        h = cams @ n - c
+        side = np.sign(np.median(h))
+        if side == 0 or not np.all(h * side > tol) or (target @ n - c) * side <= tol:
+            return False
+        hp = (probe @ n - c) * side
+        below, above = int((hp < -tol).sum()), int((hp > tol).sum())
+        return below <= max_below * max(below + above, 1)
+
+    Nrm = np.asarray(normals, np.float64)
+    flat = np.cos(np.radians(30.0))
+    best, k = ransac_plane(P, tol, iters, rng, accept=accept, normals=Nrm)
+    if best is None or k < min_fraction * len(P):
+        return None
+    n, c = best
+    for _ in range(2):  # least squares on the inliers
+        inl = P[(np.abs(P @ n - c) < tol) & (np.abs(Nrm @ n) > flat)]
+        centre = inl.mean(0)
+        n2 = np.linalg.svd(inl - centre, full_matrices=False)[2][2]
+        n = n2 if n2 @ n >= 0 else -n2
+        c = float(n @ centre)
+    if np.median(cams @ n - c) < 0:
+        n, c = -n, -c
+    if not accept(n, c):
+        return None
+    inl = P[(np.abs(P @ n - c) < tol) & (np.abs(Nrm @ n) > flat)]
+    if len(inl) < min_fraction * len(P):
+        return None
+    foot = target - (target @ n - c) * n
+    e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    rel = inl - foot
+    ang = np.arctan2(rel @ e2, rel @ e1)
+    occupied = np.unique(np.floor((ang + np.pi) / (2 * np.pi) * sectors).astype(int) % sectors)
+    if len(occupied) < min_sectors:
+        return None
+    return n, c
+
+
+def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
+                   seed: int = 0) -> dict | None:
+    """Object capture: remove from the Open3D mesh ``m`` (in place) the plane the object stands on
+    (``find_support_plane``, fitted to ``n_samples`` area-uniform surface samples, inliers within 2 voxels, or
+    1/1000 of the samples' extent without ``voxel``) and every triangle whose centre lies below ``cut`` above
+    it (0: the support's own thickness as fused, 1.25 x the 99th percentile depth of its flat samples below the
+    plane, mirrored: nothing of the object lies below it; at least 2 voxels). Logs one line; returns what was removed (metadata: ``support_normal``,
+    ``support_offset``, ``support_cut``, ``support_removed_faces``, ``support_removed_area``) or None (logged)
+    when no support plane is found."""
+    if cameras is None or not len(cameras):
+        raise BadArgumentError("--object needs the cameras (to tell which side of the table they are on)")
+    V = np.asarray(m.vertices)
+    T = np.asarray(m.triangles)
+    tri = V[T]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not area.sum() > 0:
+        return None
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(T), n_samples, p=area / area.sum())
+    r = rng.random((n_samples, 2))
+    flip = r.sum(1) > 1
+    r[flip] = 1 - r[flip]
+    t = tri[pick]
+    pts = t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
+    nrm = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+    extent = float(np.linalg.norm(np.percentile(pts, 99, 0) - np.percentile(pts, 1, 0)))
+    unit = float(voxel) if voxel else extent / 1000
+    tol = 2 * unit
+    plane = find_support_plane(pts, nrm, cameras, tol, seed=seed)
+    if plane is None:
+        log.info("object: no support plane found (no large flat part of the surface with every camera on one "
+                 "side and the object on theirs); nothing removed")
+        return None
+    n, c = plane
+    if not cut > 0:  # the fused support is not flat (a bowed board, noise): mirror its spread below the plane
+        h_pts = pts @ n - c
+        under = (h_pts < 0) & (h_pts > -10 * unit) & (np.abs(nrm @ n) > np.cos(np.radians(30.0)))
+        spread = float(np.percentile(-h_pts[under], 99)) if under.sum() >= 100 else 0.0
+        cut = max(2 * unit, 1.25 * spread)
+    h_tri = tri.mean(1) @ n - c
+    drop = h_tri < cut
+    removed = float(area[drop].sum())
+    m.remove_triangles_by_mask(drop)
+    m.remove_unreferenced_vertices()
+    info = {"support_normal": ",".join(f"{x:.5f}" for x in n), "support_offset": float(c), "support_cut": float(cut),
+            "support_removed_faces": int(drop.sum()), "support_removed_area": removed}
+    log.info("object: support plane %s . X = %.5g found (%.0f%% of the surface within %.3g of it); removed it and "
+             "everything below %.3g above it: %d faces, %.4g of %.4g area (%.0f%%)", info["support_normal"], c,
+             100 * float((np.abs(pts @ n - c) < tol).mean()), tol, cut, int(drop.sum()), removed, float(area.sum()),
+             100 * removed / float(area.sum()))
+    return info
 
 
 def _weighted_percentile(x: np.ndarray, w: np.ndarray, q: float) -> np.ndarray:

@@ -484,6 +484,11 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
              "invented area (farther than invent_distance from every observed point)":
                  None if report.get("mesh", {}).get("invented_fraction") is None
                  else f"{100 * report['mesh']['invented_fraction']:.1f}%"}
+    if "support_removed_faces" in report.get("mesh", {}):  # --object
+        m = report["mesh"]
+        facts["--object: support plane removed (n . X = c, and everything below the cut above it)"] = (
+            f"n = ({m['support_normal']}), c = {m['support_offset']:.6g}, cut {m['support_cut']:.4g}: "
+            f"{m['support_removed_faces']} faces, area {m['support_removed_area']:.4g}")
     facts.update(extra_rows or {})
     fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
     depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""

@@ -5,7 +5,8 @@
   accuracy, completeness and F-score at 0.5, 1 and 2 mm against the reference cloud (result samples more
   than 5 mm outside the reference's box are left out of accuracy: the cables behind the nut). With
   --support-plane also DTU-style, the platform under the nut left out (``support_plane``): the reference
-  cloud has no platform, the photos do.
+  cloud has no platform, the photos do. With --object also the same fused mesh cleaned with ``--object``
+  (photorecon's own support-plane removal, ``mesh.remove_support``), scored uncropped.
 * herz-jesu-p8, entry-p10 (3072x2048 facades, Strecha ground-truth cameras): the fraction of each image's
   pixels whose depth at least two other views confirm, the fused mesh's face count and the area of the
   ground in front of the facade (``ground_area``: faces within 15 cm of, and facing like, a plane fitted to
@@ -15,7 +16,7 @@ Per dataset: MVS seconds per view (JIT warm-up excluded: it runs first on a tiny
 preview PNG (the mesh from outside and from the input cameras) in --out. Prints a table; --json writes it.
 
     python tools/bench_real.py [--only walnut1,herz] [--out bench_real] [--json real.json] [--max-size 1600]
-        [--planar-prior | --no-planar-prior] [--data ../shared/data] [--support-plane] [--set NAME=VALUE]
+        [--planar-prior | --no-planar-prior] [--data ../shared/data] [--support-plane] [--object] [--set NAME=VALUE]
 """
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ from photorecon import progress
 from photorecon.depth.mvs import MVSConfig, run_mvs
 from photorecon.fusion import FusionConfig, fuse, load_frames
 from photorecon.io.dataset import Dataset
-from photorecon.mesh import CleanConfig, clean, export
+from photorecon.mesh import CleanConfig, clean, export, ransac_plane
 from photorecon.metrics import cloud_metrics, load_reference
 from photorecon.preview import render_preview
 from photorecon.resources import peak_bytes, reset_peak
@@ -60,26 +61,6 @@ def warm_up() -> float:
     return time.perf_counter() - t0
 
 
-def _ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,
-                  max_tilt_deg: float = 90.0):
-    """(unit normal n, offset c) of the plane n . X = c through three of the points ``P`` (N, 3) that has the
-    most points within ``tol``, and that count; with ``up``, only planes whose normal is within
-    ``max_tilt_deg`` of it. (None, 0) when no plane qualifies."""
-    best, best_k = None, 0
-    for _ in range(iters):
-        a, b, c = P[rng.choice(len(P), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        if np.linalg.norm(n) < 1e-15:
-            continue
-        n /= np.linalg.norm(n)
-        if up is not None and abs(n @ up) < np.cos(np.radians(max_tilt_deg)):
-            continue
-        k = int((np.abs(P @ n - n @ a) < tol).sum())
-        if k > best_k:
-            best, best_k = (n, float(n @ a)), k
-    return best, best_k
-
-
 def ground_plane(frames, rows: float = 0.15, tol: float = 0.05, max_tilt_deg: float = 35.0, iters: int = 1000,
                  seed: int = 0):
     """The ground in front of a facade: a RANSAC plane (unit normal n, offset c: n . X = c, n towards the
@@ -100,7 +81,7 @@ def ground_plane(frames, rows: float = 0.15, tol: float = 0.05, max_tilt_deg: fl
     P = np.concatenate(pts)
     rng = np.random.default_rng(seed)
     P = P[rng.choice(len(P), min(len(P), 200_000), replace=False)]
-    (n, c), _ = _ransac_plane(P, tol, iters, rng, up, max_tilt_deg)
+    (n, c), _ = ransac_plane(P, tol, iters, rng, up, max_tilt_deg)
     inl = P[np.abs(P @ n - c) < tol]
     centre = inl.mean(0)
     n = np.linalg.svd(inl - centre, full_matrices=False)[2][2]
@@ -137,7 +118,7 @@ def support_plane(mesh, reference: np.ndarray, taus=TAUS, iters: int = 1000, see
         return None
     rng = np.random.default_rng(seed)
     tol = 0.5 * min(taus)
-    best, best_k = _ransac_plane(far, tol, iters, rng)
+    best, best_k = ransac_plane(far, tol, iters, rng)
     if best is None or best_k < 0.01 * len(pts):
         return None
     n, c = best
@@ -149,8 +130,16 @@ def support_plane(mesh, reference: np.ndarray, taus=TAUS, iters: int = 1000, see
     return n, float((reference @ n).min()), c
 
 
+def _scores(row: dict, mesh, reference, suffix: str = "", crop_plane=None):
+    m = cloud_metrics(mesh, reference, TAUS, crop_margin=0.005, crop_plane=crop_plane)
+    for s in m.thresholds:
+        mm = f"{s.tau * 1000:g}mm"
+        row[f"acc@{mm}{suffix}"], row[f"comp@{mm}{suffix}"], row[f"F@{mm}{suffix}"] = s.precision, s.recall, s.fscore
+    return m
+
+
 def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | None = None,
-            crop_support: bool = False) -> dict:
+            crop_support: bool = False, object_mode: bool = False) -> dict:
     ds = Dataset.open(root)
     work = out / name
     work.mkdir(parents=True, exist_ok=True)
@@ -164,9 +153,15 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
     dsd = Dataset.open(root, depth_dir=work / "depth")
     fc = FusionConfig(**{"trunc_voxels": 3.0, **(fusion or {})})
     frames = load_frames(dsd, fc)
-    mesh = clean(fuse(frames, fc, dsd.model.points), CleanConfig())
+    fused = fuse(frames, fc, dsd.model.points)
+    mesh = clean(fused, CleanConfig())
     t_fuse = time.perf_counter() - t1
     export(mesh, work / "mesh.ply")
+    obj = None
+    if object_mode:  # the same fused mesh cleaned with --object
+        obj = clean(fused, CleanConfig(object=True), cameras=ds.views)
+        export(obj, work / "mesh_object.ply")
+        render_preview(obj, work / "preview_object.png", cameras=ds.views)
     render_preview(mesh, work / "preview.png", cameras=ds.views)
     row = {"dataset": name, "views": len(ds.views), "depth_maps": rep["views"],
            "size": rep["per_view"][next(iter(rep["per_view"]))]["size"],
@@ -179,10 +174,11 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
     ref = root / "reference.ply"
     if ref.is_file():
         reference = load_reference(ref)
-        m = cloud_metrics(mesh, reference, TAUS, crop_margin=0.005)
-        for s in m.thresholds:
-            mm = f"{s.tau * 1000:g}mm"
-            row[f"acc@{mm}"], row[f"comp@{mm}"], row[f"F@{mm}"] = s.precision, s.recall, s.fscore
+        m = _scores(row, mesh, reference)
+        if obj is not None:
+            _scores(row, obj, reference, "_object")
+            row["object_faces"] = len(obj.faces)
+            row["object_support"] = {k: v for k, v in obj.metadata.items() if k.startswith("support_")}
         row["accuracy_median_mm"] = m.accuracy_median * 1000
         row["completeness_median_mm"] = m.completeness_median * 1000
         if crop_support:
@@ -190,12 +186,8 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
             row["support_plane"] = None if plane is None else {"normal": plane[0].round(5).tolist(),
                                                                "crop_offset": plane[1], "plane_offset": plane[2]}
             if plane is not None:
-                ms = cloud_metrics(mesh, reference, TAUS, crop_margin=0.005, crop_plane=plane[:2])
+                ms = _scores(row, mesh, reference, "_above_support", plane[:2])
                 row["support_cropped_fraction"] = 1 - ms.result_samples / m.result_samples
-                for s in ms.thresholds:
-                    mm = f"{s.tau * 1000:g}mm"
-                    row[f"acc@{mm}_above_support"], row[f"comp@{mm}_above_support"] = s.precision, s.recall
-                    row[f"F@{mm}_above_support"] = s.fscore
     else:
         plane = ground_plane(frames)
         row["ground_m2"] = ground_area(mesh, plane)
@@ -216,6 +208,9 @@ def main() -> int:
                     help="walnuts: also score with the platform under the nut left out, DTU-style (result samples "
                          "below the reference's lowest point along a plane fitted to the result's unexplained "
                          "samples; support_plane()); the uncropped scores are always reported")
+    ap.add_argument("--object", action="store_true",
+                    help="walnuts: also clean the same fused mesh with --object (the support plane and everything "
+                         "below it removed, photorecon.mesh.remove_support) and score it uncropped (*_object)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="override any MVSConfig or FusionConfig setting, e.g. --set pm_radius=5 --set normal_sdf=0.2 "
                          "(repeatable)")
@@ -236,7 +231,7 @@ def main() -> int:
         if not root.is_dir():
             print(f"{name}: {root} not found, skipped", file=sys.stderr)
             continue
-        row = run_one(name, root, Path(args.out), cfg, fusion, args.support_plane)
+        row = run_one(name, root, Path(args.out), cfg, fusion, args.support_plane, args.object)
         rows.append(row)
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
         if args.json:
@@ -245,6 +240,8 @@ def main() -> int:
             "acc@1mm", "comp@1mm", "F@0.5mm", "F@1mm", "F@2mm"]
     if args.support_plane:
         cols += ["acc@1mm_above_support", "F@1mm_above_support"]
+    if args.object:
+        cols += ["acc@1mm_object", "comp@1mm_object", "F@1mm_object"]
     print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:
         print("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols) + " |")
