@@ -18,27 +18,29 @@ from photorecon.testing import synth_scene
 FAST = dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=2, pm_final_iterations=1)
 
 
-@pytest.mark.parametrize("checker", [False, True], ids=["grid", "checker"])
-def test_ncc_kernel_matches_slow_reference(checker):
+@pytest.mark.parametrize("radius,checker", [(5, False), (5, True), (4, False)], ids=["grid", "checker", "radius4"])
+def test_ncc_kernel_matches_slow_reference(radius, checker):
+    """The default windows (6x6 and its checkerboard) take the kernel's constant-bound row walk, a 9x9 window
+    (5x5 samples) the general one; both must give the slow reference's cost."""
     rng = np.random.default_rng(0)
     ref = rng.random((40, 50)).astype(np.float32)
     src = rng.random((40, 50)).astype(np.float32)
-    sdy, sdx, sspat = K.window_samples(5, 2, 3.0, checker=checker)
-    assert len(sdy) == (18 if checker else 36)
+    sdy, sdx, sspat = K.window_samples(radius, 2, 3.0, checker=checker)
+    assert len(sdy) == {(5, False): 36, (5, True): 18, (4, False): 25}[radius, checker]
     # perspective: the kernel's map is linearised at the window's centre; on this noise texture the half window's
     # NCC moves more with it (largest difference 0.0029 against 0.0007 with the full grid)
     for Hm, tol in ((np.array([[1.02, 0.05, 1.3], [-0.03, 0.97, 0.6], [0, 0, 1.0]]), 1e-5),  # affine: exact
                     (np.array([[1.0, 0.02, 0.4], [0.01, 1.0, -0.3], [2e-4, -1e-4, 1.0]]), 4e-3 if checker else 2e-3)):
         for x, y in ((20, 20), (3, 4), (45, 36), (25, 10)):
             got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
-            want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1, checker=checker)
+            want = ncc_cost_reference(ref, src, x, y, Hm, radius, 2, 3.0, 0.1, checker=checker)
             assert abs(got - want) < tol, (x, y, got, want)
     # at the reference's corners the window's offsets are clamped, yet the source samples must still be
     # clamped to the source image: a centre next to the source's edge reads no pixel beyond it
     for x, y, tx, ty in ((0, 0, 47.5, 2.0), (0, 0, 3.0, 36.5), (49, 39, -47.0, -36.0), (0, 39, 47.2, -3.0)):
         Hm = np.array([[1.0, 0, tx], [0, 1.0, ty], [0, 0, 1.0]])
         got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
-        want = ncc_cost_reference(ref, src, x, y, Hm, 5, 2, 3.0, 0.1, checker=checker)
+        want = ncc_cost_reference(ref, src, x, y, Hm, radius, 2, 3.0, 0.1, checker=checker)
         assert abs(got - want) < 1e-5, (x, y, got, want)
     # identical windows cost 0; a window outside the source costs the maximum, 2
     assert K.ncc_at(ref, ref, 20, 20, np.eye(3).ravel(), sdy, sdx, sspat, 0.1, 1e-5) < 1e-6

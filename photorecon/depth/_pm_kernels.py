@@ -170,23 +170,18 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
     inside = cx - ex >= 0.0 and cx + ex <= xmax and cy - ey >= 0.0 and cy + ey <= ymax
     if inside and grid > 0:
         # an unclamped window of rows (``grid`` samples each, one x step) wholly inside the source: walk each
-        # row by constant steps
+        # row by constant steps; the default windows (6 rows of 6, and their checkerboard, 6 rows of 3) with
+        # constant loop bounds, which the compiler unrolls
         step = du[1] - du[0]
         stx = j00 * step
         sty = j10 * step
-        k = 0
-        for _ in range(du.shape[0] // grid):
-            sx = cx + j00 * du[k] + j01 * dv[k]
-            sy = cy + j10 * du[k] + j11 * dv[k]
-            for _ in range(grid):
-                val = _bilerp(img, sx, sy)
-                wv = wk[k] * val
-                s1 += wv
-                s2 += wv * val
-                s12 += wv * rv[k]
-                sx += stx
-                sy += sty
-                k += 1
+        n = du.shape[0]
+        if grid == 6 and n == 36:
+            s1, s2, s12 = _walk_rows(img, cx, cy, j00, j01, j10, j11, du, dv, rv, wk, stx, sty, 6, 6)
+        elif grid == 3 and n == 18:
+            s1, s2, s12 = _walk_rows(img, cx, cy, j00, j01, j10, j11, du, dv, rv, wk, stx, sty, 6, 3)
+        else:
+            s1, s2, s12 = _walk_rows(img, cx, cy, j00, j01, j10, j11, du, dv, rv, wk, stx, sty, n // grid, grid)
         return _ncc_finish(s1, s2, s12, sw, mr, vr, min_var)
     for k in range(du.shape[0]):
         sx = cx + j00 * du[k] + j01 * dv[k]
@@ -203,16 +198,42 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
 
 
 @njit(cache=True, fastmath=True, inline="always")
+def _walk_rows(img, cx, cy, j00, j01, j10, j11, du, dv, rv, wk, stx, sty, nrows, ncols):
+    """Weighted sums (s1, s2, s12) of ``img`` over a window of ``nrows`` rows of ``ncols`` samples each (one
+    x step: (``stx``, ``sty``) in the source per sample), every sample inside the source image."""
+    s1 = 0.0
+    s2 = 0.0
+    s12 = 0.0
+    for r in range(nrows):
+        k0 = r * ncols
+        sx = cx + j00 * du[k0] + j01 * dv[k0]
+        sy = cy + j10 * du[k0] + j11 * dv[k0]
+        for c in range(ncols):
+            k = k0 + c
+            val = _bilerp(img, sx, sy)
+            wv = wk[k] * val
+            s1 += wv
+            s2 += wv * val
+            s12 += wv * rv[k]
+            sx += stx
+            sy += sty
+    return s1, s2, s12
+
+
+@njit(cache=True, fastmath=True, inline="always")
 def _bilerp(img, sx, sy):
-    """``img`` bilinearly at (sx, sy), which must lie in [0, w - 1) x [0, h - 1)."""
-    ix = int(sx)
-    iy = int(sy)
-    fx = sx - ix
-    fy = sy - iy
+    """``img`` bilinearly at (sx, sy), which must lie in [0, w - 1) x [0, h - 1). Unsigned indices: no
+    wrap-around test for negative ones."""
+    ix = np.uintp(sx)
+    iy = np.uintp(sy)
+    fx = sx - np.float64(ix)
+    fy = sy - np.float64(iy)
+    ix1 = ix + np.uintp(1)
+    iy1 = iy + np.uintp(1)
     a = img[iy, ix]
-    b = img[iy, ix + 1]
-    c = img[iy + 1, ix]
-    d = img[iy + 1, ix + 1]
+    b = img[iy, ix1]
+    c = img[iy1, ix]
+    d = img[iy1, ix1]
     return a + fx * (b - a) + fy * (c - a + fx * (a - b - c + d))
 
 
