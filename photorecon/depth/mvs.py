@@ -58,6 +58,8 @@ class MVSConfig:
     max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)"})
     min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost) is below this before the geometric filter (0 = the filter alone decides: on the synthetic knot with masks 4 more points of coverage, as PatchMatch's cost holds ACMM's geometric term, high where sources are occluded although the depth is right; but on walnut 2016_10_24 at 800 px F@1mm 0.977 -> 0.969, and without masks a plain background gets through unless --min-texture removes it)"})
     min_texture: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation (grey 0..1) is below this: matching has no evidence there; with --min-confidence 0, 0.01 keeps a plain background out (synthetic room without masks: mesh F@1%% 0.83 -> 0.93) but removes most of a dark, low-contrast object (walnut 2016_10_24: F@1mm 0.977 -> 0.539), so it is off by default; not applied with --planar-prior, which fills such pixels (0 = off)"})
+    texture_rel: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation is below this fraction of the image's median window (planar.relative_texture: measured against the photo's own contrast, so a dark, low-contrast object keeps its depth where --min-texture removes it), and the pixels kept need only --textured-min-confidence: the multi-view filter decides. 0.2 meets the synthetic knot's coverage target (true poses, within 1%% / coverage 0.972 / 0.863 -> 0.959 / 0.906) but costs the walnuts 0.5-2.3 points of F@1mm (800 px, --object: 0.981 -> 0.976, 0.914 -> 0.891), so it is off by default; not applied with --planar-prior (0 = off)"})
+    textured_min_confidence: float = field(default=0.0, metadata={"help": "with --texture-rel: the confidence threshold (in place of --min-confidence) for the pixels it keeps"})
     min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
     filter_sources: int = field(default=16, metadata={"help": "geometric filter: check each depth against this many views (the matching sources, then the next best ranked; 0 = the matching sources only): a surface that some matching sources cannot see (self-occlusion) is confirmed by the views that do (synthetic knot, true poses: coverage 0.842 -> 0.859; 0.903 with --min-confidence 0 --min-texture 0.01)"})
     consistency_confidence: bool = field(default=True, metadata={"help": "geometric filter: a depth that k views confirm gets at least confidence 1 - 1/k (its TSDF weight): the matching cost alone underrates depths whose sources are partly occluded"})
@@ -530,16 +532,25 @@ def _raw_path(ctx: _MVSContext, name: str, what: str) -> Path:
 def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarray, normal: np.ndarray | None) -> None:
     """A view's unfiltered result: low-confidence, non-finite and masked pixels to 0; to ``work/raw`` (depth last:
     the file that says the view is done)."""
-    depth[(conf < ctx.cfg.min_confidence) | ~np.isfinite(depth)] = 0
-    if normal is not None and ctx.cfg.min_texture > 0 and not ctx.cfg.planar_prior:  # PatchMatch: no evidence
-        from .planar import textureless
-
-        depth[textureless(_working_grey(ctx, name), ctx.cfg.pm_radius, ctx.cfg.min_texture)] = 0
+    cfg = ctx.cfg
     mask = _level_mask(ctx, name, _plan_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
+    h, w = depth.shape
+    if mask is not None and mask.shape != (h, w):
+        mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    min_conf = cfg.min_confidence
+    if normal is not None and not cfg.planar_prior and (cfg.min_texture > 0 or cfg.texture_rel > 0):
+        from .planar import relative_texture, textureless  # PatchMatch: no evidence where the window is flat
+
+        grey = _working_grey(ctx, name)
+        if grey.shape != (h, w):
+            grey = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)
+        if cfg.min_texture > 0:
+            depth[textureless(grey, cfg.pm_radius, cfg.min_texture)] = 0
+        if cfg.texture_rel > 0:
+            depth[relative_texture(grey, cfg.pm_radius, mask) < cfg.texture_rel] = 0
+            min_conf = cfg.textured_min_confidence
+    depth[(conf < min_conf) | ~np.isfinite(depth)] = 0
     if mask is not None:
-        h, w = depth.shape
-        if mask.shape != (h, w):
-            mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
         depth[~mask] = 0
     _save(_raw_path(ctx, name, "conf"), conf.astype(np.float32))
     if normal is not None:

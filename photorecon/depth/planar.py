@@ -128,16 +128,37 @@ def prior_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, Kinv: 
     return pd, pn, stats
 
 
-def textureless(img: np.ndarray, radius: int, max_std: float = TEXTURELESS_STD) -> np.ndarray:
-    """Pixels whose (2 ``radius`` + 1)^2 window of the grey image ``img`` has a standard deviation below
-    ``max_std``: photometric matching has no evidence there (NCC of a flat window is 0, cost 1, at any depth)."""
+def window_std(img: np.ndarray, radius: int) -> np.ndarray:
+    """Standard deviation of the grey image ``img`` over each pixel's (2 ``radius`` + 1)^2 window."""
     import cv2
 
     k = (2 * radius + 1, 2 * radius + 1)
     im = img.astype(np.float32)
     m = cv2.blur(im, k, borderType=cv2.BORDER_REFLECT)
     var = cv2.blur(im * im, k, borderType=cv2.BORDER_REFLECT) - m * m
-    return var < max_std * max_std
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def textureless(img: np.ndarray, radius: int, max_std: float = TEXTURELESS_STD) -> np.ndarray:
+    """Pixels whose (2 ``radius`` + 1)^2 window of the grey image ``img`` has a standard deviation below
+    ``max_std``: photometric matching has no evidence there (NCC of a flat window is 0, cost 1, at any depth)."""
+    return window_std(img, radius) < max_std
+
+
+FLAT_STD = 1.0 / 255.0  # a window below one grey level of standard deviation: flat, whatever the image's contrast
+
+
+def relative_texture(img: np.ndarray, radius: int, mask: np.ndarray | None = None) -> np.ndarray:
+    """Each pixel's window standard deviation (``window_std``) divided by the image's typical one: the median
+    over the windows that are not flat (at least ``FLAT_STD``; inside ``mask`` when given). A texture measure
+    that does not depend on the photo's exposure or contrast: a dark, low-contrast object and a bright one
+    score alike, 1 = as textured as the image's median window. All zeros for an image with no texture."""
+    std = window_std(img, radius)
+    vals = std if mask is None else std[mask]
+    vals = vals[vals >= FLAT_STD]
+    if vals.size == 0:
+        return np.zeros_like(std)
+    return std / float(np.median(vals))
 
 
 def inject_prior(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, prev: tuple[np.ndarray, np.ndarray, np.ndarray],
