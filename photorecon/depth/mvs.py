@@ -752,7 +752,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out,
                       _filter_plan(model, views, cfg))
     t_graph = time.perf_counter()
-    results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method})")
+    # the bar counts tasks (each view's PatchMatch rounds, then its filter), not views
+    results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method}, {len(views)} views)", unit="task")
     t_graph = time.perf_counter() - t_graph
     _GREY_CACHE.clear()
     _MASK_CACHE.clear()
