@@ -140,6 +140,27 @@ def synth_scene(tmp_path_factory, name: str, **cfg):
     return out
 
 
+def depth_scores(dataset, out, root) -> tuple[float, float, float]:
+    """Depth maps written to ``out`` (``NAME.npy``; a missing one counts as empty) against the synthetic truth in
+    ``root/depth``: (mean fraction of the kept depths within 1% of the truth, mean coverage of the true surface
+    pixels, share of all kept depths that lie where the truth has no surface)."""
+    from pathlib import Path
+
+    from .metrics import depth_metrics
+
+    within, cover, background, kept = [], [], 0, 0
+    for v in dataset.views:
+        gt = np.load(Path(root) / "depth" / f"{v.name}.npy")
+        p = Path(out) / f"{v.name}.npy"
+        d = np.load(p) if p.is_file() else np.zeros_like(gt)
+        m = depth_metrics(d, gt)
+        within.append(m["within"])
+        cover.append(m["coverage"])
+        background += int(((d > 0) & (gt <= 0)).sum())
+        kept += int((d > 0).sum())
+    return float(np.mean(within)), float(np.mean(cover)), background / max(kept, 1)
+
+
 def multiscale_texture(n: int, scales: tuple[int, ...], seed: int = 0) -> np.ndarray:
     """An (n, n) float image around grey 0.5 (std 0.15): random blocks of each size in ``scales`` summed, the
     larger ones weighted more; a texture PatchMatch can match at every pyramid level."""

@@ -10,9 +10,8 @@ from photorecon.depth.patchmatch import PatchMatchParams, ncc_cost_reference, pa
 from photorecon.errors import NoDepthError
 from photorecon.io.colmap_text import SparseModel
 from photorecon.io.dataset import Dataset
-from photorecon.metrics import depth_metrics
 from photorecon.synthetic import SynthConfig, synthesize
-from photorecon.testing import synth_scene
+from photorecon.testing import depth_scores, synth_scene
 
 # small and quick: two pyramid levels, few iterations (the defaults are for 1600-px photos)
 FAST = dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=2, pm_final_iterations=1)
@@ -154,17 +153,6 @@ def room(tmp_path_factory):
     return synth_scene(tmp_path_factory, "room", scene="room", views=16, width=256, height=192, points=2000, seed=4)
 
 
-def _depth_scores(ds, out, root):
-    within, cover = [], []
-    for v in ds.views:
-        p = out / f"{v.name}.npy"
-        d = np.load(p) if p.is_file() else np.zeros((v.intrinsics.height, v.intrinsics.width), np.float32)
-        m = depth_metrics(d, np.load(root / "depth" / f"{v.name}.npy"))
-        within.append(m["within"])
-        cover.append(m["coverage"])
-    return float(np.mean(within)), float(np.mean(cover))
-
-
 @pytest.mark.slow
 def test_room_patchmatch_passes_where_the_sweep_fails(room, tmp_path):
     """Floors and walls seen at grazing angles: fronto-parallel planes cannot fit them, slanted planes can."""
@@ -172,8 +160,8 @@ def test_room_patchmatch_passes_where_the_sweep_fails(room, tmp_path):
     run_mvs(ds, tmp_path / "pm", MVSConfig(**FAST, min_consistent=1))
     run_mvs(ds, tmp_path / "sweep", MVSConfig(method="sweep", n_sources=4, n_depths=96, min_consistent=1,
                                               min_confidence=0.5))
-    pm_within, pm_cover = _depth_scores(ds, tmp_path / "pm", room)
-    sw_within, sw_cover = _depth_scores(ds, tmp_path / "sweep", room)
+    pm_within, pm_cover, _ = depth_scores(ds, tmp_path / "pm", room)
+    sw_within, sw_cover, _ = depth_scores(ds, tmp_path / "sweep", room)
     # measured: patchmatch 0.955 within 1% / 0.82 coverage; sweep 0.79 / 0.39
     assert pm_within >= 0.9, pm_within
     assert pm_cover >= 0.7, pm_cover
@@ -191,7 +179,7 @@ def test_given_cameras_without_points_get_triangulated(ring16, tmp_path):
     rep = run_mvs(bare, tmp_path / "d", MVSConfig(n_sources=3, pm_levels=1, pm_iterations=3, min_consistent=1))
     assert rep["triangulated"] and rep["sparse_points"] > 200
     assert rep["views"] >= len(ds.views) - 1
-    within, cover = _depth_scores(ds, tmp_path / "d", ring16)
+    within, cover, _ = depth_scores(ds, tmp_path / "d", ring16)
     assert within > 0.9 and cover > 0.4, (within, cover)
 
 
@@ -231,8 +219,8 @@ def test_filter_checks_views_beyond_the_matching_sources(knot_small, tmp_path):
     cfg = dict(FAST, n_sources=3, pm_fine_sources=0)
     run_mvs(ds, tmp_path / "narrow", MVSConfig(**cfg, filter_sources=0))
     rep = run_mvs(ds, tmp_path / "wide", MVSConfig(**cfg, filter_sources=10))
-    n_w, c_n = _depth_scores(ds, tmp_path / "narrow", knot_small)
-    w_w, c_w = _depth_scores(ds, tmp_path / "wide", knot_small)
+    n_w, c_n, _ = depth_scores(ds, tmp_path / "narrow", knot_small)
+    w_w, c_w, _ = depth_scores(ds, tmp_path / "wide", knot_small)
     # measured: 3 sources 0.940 within 1% / 0.384 coverage; 10 views 0.903 / 0.591 (at 200x150 the depths only
     # 1-2 views match are less often within 1%, but the true surface within 1% grows from 0.36 to 0.53)
     assert c_w >= c_n + 0.15, (c_n, c_w)

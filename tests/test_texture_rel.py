@@ -9,8 +9,7 @@ from PIL import Image
 from photorecon.depth.mvs import MVSConfig, run_mvs
 from photorecon.depth.planar import relative_texture, textureless
 from photorecon.io.dataset import Dataset
-from photorecon.metrics import depth_metrics
-from photorecon.testing import synth_scene
+from photorecon.testing import depth_scores, synth_scene
 
 FAST = dict(n_sources=3, pm_levels=2, pm_iterations=4, pm_fine_iterations=2, pm_final_iterations=1,
             pm_fine_sources=0, filter_sources=10)
@@ -45,28 +44,15 @@ def dark_knot(tmp_path_factory):
     return root
 
 
-def _scores(ds, out, root):
-    within, cover, background, kept = [], [], 0, 0
-    for v in ds.views:
-        gt = np.load(root / "depth" / f"{v.name}.npy")
-        d = np.load(out / f"{v.name}.npy")
-        m = depth_metrics(d, gt)
-        within.append(m["within"])
-        cover.append(m["coverage"])
-        background += int(((d > 0) & (gt <= 0)).sum())
-        kept += int((d > 0).sum())
-    return float(np.mean(within)), float(np.mean(cover)), background / max(kept, 1)
-
-
 def test_relative_texture_keeps_a_dark_object_and_drops_a_plain_background(dark_knot, tmp_path):
     ds = Dataset.open(dark_knot)
     assert ds.mask(ds.views[0]) is None
     run_mvs(ds, tmp_path / "none", MVSConfig(**FAST, min_confidence=0.0))
     run_mvs(ds, tmp_path / "abs", MVSConfig(**FAST, min_confidence=0.0, min_texture=0.01))
     run_mvs(ds, tmp_path / "rel", MVSConfig(**FAST, texture_rel=0.2))
-    w_n, c_n, bg_n = _scores(ds, tmp_path / "none", dark_knot)
-    w_a, c_a, bg_a = _scores(ds, tmp_path / "abs", dark_knot)
-    w_r, c_r, bg_r = _scores(ds, tmp_path / "rel", dark_knot)
+    w_n, c_n, bg_n = depth_scores(ds, tmp_path / "none", dark_knot)
+    w_a, c_a, bg_a = depth_scores(ds, tmp_path / "abs", dark_knot)
+    w_r, c_r, bg_r = depth_scores(ds, tmp_path / "rel", dark_knot)
     # measured (within 1% / coverage / background share of the kept depths): no texture test 0.63 / 0.70 / 0.43;
     # --min-texture 0.01: 0.59 / 0.44 / 0.17; --texture-rel 0.2: 0.63 / 0.69 / 0.18 (the defaults, confidence
     # >= 0.2: 0.66 / 0.58 / 0.18; at 200x150 with 33 grey levels few depths are within 1%)

@@ -22,14 +22,12 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from photorecon import progress
 from photorecon.depth.mvs import MVSConfig, run_mvs
 from photorecon.io.dataset import Dataset
-from photorecon.metrics import depth_metrics
 from photorecon.resources import peak_bytes, reset_peak
 from photorecon.synthetic import SynthConfig, synthesize
+from photorecon.testing import depth_scores
 
 
 def warm_up() -> float:
@@ -42,15 +40,8 @@ def warm_up() -> float:
 
 
 def scores(ds: Dataset, out: Path, root: Path) -> tuple[float, float]:
-    within, cover = [], []
-    for v in ds.views:
-        p = out / f"{v.name}.npy"
-        gt = np.load(root / "depth" / f"{v.name}.npy")
-        d = np.load(p) if p.is_file() else np.zeros_like(gt)
-        m = depth_metrics(d, gt)
-        within.append(m["within"])
-        cover.append(m["coverage"])
-    return float(np.mean(within)), float(np.mean(cover))
+    """(within 1%, coverage) of the depth maps in ``out`` against the truth in ``root``."""
+    return depth_scores(ds, out, root)[:2]
 
 
 def _round_seconds(rep: dict, n: int) -> dict:

@@ -541,9 +541,7 @@ def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarr
     if normal is not None and not cfg.planar_prior and (cfg.min_texture > 0 or cfg.texture_rel > 0):
         from .planar import relative_texture, textureless  # PatchMatch: no evidence where the window is flat
 
-        grey = _working_grey(ctx, name)
-        if grey.shape != (h, w):
-            grey = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)
+        grey = _working_grey(ctx, name)  # the last round's depth is at the working resolution
         if cfg.min_texture > 0:
             depth[textureless(grey, cfg.pm_radius, cfg.min_texture)] = 0
         if cfg.texture_rel > 0:
