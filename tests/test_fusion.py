@@ -316,7 +316,7 @@ def test_auto_voxel_follows_the_footprint(frames, caplog):
     f = 160 / np.tan(np.radians(25))
     expected = cfg.voxel_footprints * (3.0 - 1.0) / f
     assert expected / 1.5 < voxel < expected * 1.5, (voxel, expected)
-    # far-away background: sparse outliers (which inflated the old bounding box) leave it as it is ...
+    # far-away background: sparse outliers (which would inflate a bounding box) leave it as it is ...
     rng = np.random.default_rng(0)
     sparse = np.concatenate([rng.normal(0, 0.5, (2000, 3)), rng.uniform(-200, 200, (400, 3))])
     assert tsdf_voxel_size(frames, cfg, sparse)[0] == voxel
@@ -324,7 +324,7 @@ def test_auto_voxel_follows_the_footprint(frames, caplog):
     with_bg = [DepthFrame(fr.view, np.where(fr.depth > 0, fr.depth, 40.0).astype(np.float32), fr.color)
                for fr in frames]
     assert pixel_footprint(with_bg) < 1.1 * pixel_footprint(frames)
-    # the grid of the old rule, scene diagonal / 512, stays available on request
+    # a grid of a fixed number of voxels across the scene (voxels_across) is available on request
     assert tsdf_voxel_size(frames, FusionConfig(voxels_across=100), sparse)[0] > 50 * voxel
     # memory guard: an automatic voxel is coarsened (and says so), an explicit one is refused
     with caplog.at_level("WARNING", logger="photorecon"):

@@ -137,7 +137,7 @@ def test_undistorted_mask_follows_the_image(rgba, tmp_path):
         assert (mask != orig).mean() > 0.01  # ... and really undistorted
 
 
-# --- --masks DIR: a user's mask folder for sfm, mvs, fuse and reconstruct (issue 12 item 2) -------------------
+# --- --masks DIR: a user's mask folder for sfm, mvs, fuse and reconstruct -------------------------------------
 def _backdrop_depth(view, radius=2.0):
     """z-depth (H, W) of the far side of a sphere of ``radius`` around the origin: a backdrop shell behind
     the object, seen by every pixel whose ray reaches it."""

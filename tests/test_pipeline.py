@@ -149,7 +149,7 @@ def test_transforms_paths_are_confined(blob_small, tmp_path, capsys):
 
 
 def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path):
-    """Issue 12: each stage is keyed on its settings and input files; a stage that runs again runs the later
+    """Each stage is keyed on its settings and input files; a stage that runs again runs the later
     ones too, and only those."""
     import shutil
 
@@ -188,7 +188,7 @@ def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path)
 
 
 def test_reconstruct_returns_a_typed_result(blob_small, tmp_path):
-    """Issue 15: the Python API returns a dataclass (fields typed and documented) that is report.json."""
+    """The Python API returns a dataclass (fields typed and documented) that is report.json."""
     from photorecon.pipeline import ReconstructConfig, ReconstructResult, StageConfigs, reconstruct
 
     cfgs = StageConfigs(ReconstructConfig(poses=str(blob_small / "transforms.json"), depth=str(blob_small / "depth")))

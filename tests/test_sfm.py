@@ -267,7 +267,7 @@ def _database(out):
 
 @pytest.mark.slow
 def test_sfm_caches_are_keyed_on_their_settings(ring_tiny, tmp_path, capsys):
-    """Issue 12: a re-run with other intrinsics, camera model or matcher recomputes what they change (and what
+    """A re-run with other intrinsics, camera model or matcher recomputes what they change (and what
     follows), and reuses the rest."""
     out = tmp_path / "out"
 
@@ -322,7 +322,7 @@ def test_sfm_reruns_when_the_images_change(ring_tiny, tmp_path):
 
 @pytest.mark.slow
 def test_reconstruct_reruns_sfm_with_new_intrinsics(ring_tiny, tmp_path):
-    """Issue 12: reconstruct's poses stage is keyed on the SfM settings, and SfM's own caches too."""
+    """Reconstruct's poses stage is keyed on the SfM settings, and SfM's own caches too."""
     out = tmp_path / "out"
     args = ["-q", "reconstruct", str(ring_tiny / "images"), "-o", str(out), "--mvs", "sweep", "--n-depths", "32"]
     assert main(args) == 0
@@ -354,7 +354,7 @@ def test_choice_of_matching_and_mapper_by_count_and_gps():
 
 @pytest.mark.slow
 def test_sequential_and_spatial_matching_register_every_view_like_exhaustive(ring_tiny, tmp_path):
-    """Issue 14: an ordered capture (a ring, file names in capture order, as JPEGs with EXIF GPS) matched
+    """An ordered capture (a ring, file names in capture order, as JPEGs with EXIF GPS) matched
     sequentially (3 neighbours by name) or spatially (4 nearest by GPS) registers every view as accurately as
     exhaustive matching, from far fewer pairs; auto above --exhaustive-max picks spatial for geotagged photos."""
     from photorecon.io.images import read_image

@@ -5,8 +5,8 @@ Accuracy (40 sphere views, 640x480): TSDF and grid meshes vs ground truth on `bl
 (if ../shared/data/stanford-bunny is present), with the article's legacy pipeline (concatenated per-view
 meshes, fixed 0.1 edge threshold) in the same run. Speed: TSDF fusion of 100 views at voxel = diagonal/512.
 Integration, side by side (47 views, 640x480, the default footprint voxel, a confidence map per view): Open3D's
-own ``integrate`` (weight 1), the confidence-weighted update of before (numpy on the grid's storage, kept
-here as ``integrate_weighted_numpy``) and the numba kernel now in ``photorecon.fusion``; seconds per frame
+own ``integrate`` (weight 1), a numpy version of the confidence-weighted update (on the grid's storage,
+``integrate_weighted_numpy`` here) and photorecon's numba kernel (``photorecon.fusion``); seconds per frame
 (integration call only, and with the block selection) and peak MB, each in a fresh process; plus the numba
 JIT warm-up, with an empty cache (compilation) and with the on-disk cache (``cache=True``).
 
@@ -86,10 +86,10 @@ def run_speed(n_views: int, tmp: Path) -> dict:
             "faces": len(mesh.faces)}
 
 
-# --- integration: Open3D vs numpy weighted (before) vs numba weighted (now) -----------------------------------
+# --- integration: Open3D vs numpy weighted vs numba weighted (photorecon) ------------------------------------
 def integrate_weighted_numpy(vbg, block_coords, f: DepthFrame, voxel: float, trunc: float, depth_max: float) -> None:
-    """The confidence-weighted update as it was before the numba kernel (numpy over every voxel of the
-    frame's blocks, with (N, 3) temporaries), kept for this comparison only."""
+    """The confidence-weighted update in numpy (over every voxel of the frame's blocks, with (N, 3)
+    temporaries): the plain reference the numba kernel is compared with."""
     hm = vbg.hashmap()
     hm.activate(block_coords)
     buf, _ = hm.find(block_coords)
@@ -240,8 +240,8 @@ def print_integrate(res: dict) -> None:
           f"{r0['active_blocks']} blocks; each method in a fresh process")
     print(f"{'method':28} {'integrate s/frame':>17} {'+blocks s/frame':>15} {'x Open3D':>8} {'extract s':>9} "
           f"{'peakMB':>7} {'above inputs':>12}")
-    names = {"open3d": "Open3D integrate (weight 1)", "numpy": "weighted, numpy (before)",
-             "numba": "weighted, numba (now)"}
+    names = {"open3d": "Open3D integrate (weight 1)", "numpy": "weighted, numpy",
+             "numba": "weighted, numba (photorecon)"}
     for r in rows:
         print(f"{names[r['method']]:28} {r['integrate_s_per_frame']:17.4f} {r['with_blocks_s_per_frame']:15.4f} "
               f"{r['integrate_s_per_frame'] / r0['integrate_s_per_frame']:8.2f} {r['extract_s']:9.2f} "
