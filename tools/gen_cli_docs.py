@@ -67,9 +67,11 @@ def _expand_help(action: argparse.Action, prog: str) -> str:
         if params.get(key) is not None:
             params[key] = ", ".join(map(str, params[key]))
     try:
-        return text % params
+        text = text % params
     except (KeyError, TypeError, ValueError):
-        return text
+        pass
+    # Python 3.10's BooleanOptionalAction appends its own "(default: ...)" to a help that already has one
+    return re.sub(r"(\(default: [^()]*\))(?: \1)+$", r"\1", text)
 
 
 def _metavar(action: argparse.Action) -> str:
