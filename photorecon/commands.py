@@ -236,7 +236,7 @@ def sfm(sub):
 def _run_sfm(args):
     from pathlib import Path
 
-    from .io.output import prepare_output
+    from .io.output import output_folder
     from .scale import ScaleConfig, scale_output
     from .sfm import SfMConfig, check_sfm_masks, run_sfm
 
@@ -244,9 +244,9 @@ def _run_sfm(args):
     scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
     if args.masks:
         check_sfm_masks(args.images, args.masks)  # before anything is written
-    out = prepare_output(args.out, args.overwrite, inputs=(args.images,) + ((args.masks,) if args.masks else ()))
-    res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
-    units = scale_output(out, args.images if Path(args.images).is_dir() else None, scale_cfg)["units"]
+    with output_folder(args.out, args.overwrite, inputs=(args.images, args.masks, cfg.intrinsics)) as out:
+        res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
+        units = scale_output(out, args.images if Path(args.images).is_dir() else None, scale_cfg)["units"]
     n = len(res.registered) + len(res.unregistered)
     print(f"sfm: {len(res.registered)} of {n} images registered, {len(res.model.points)} sparse points -> "
           f"{out}/sparse/0, {out}/transforms.json (units: {units})"
@@ -319,10 +319,33 @@ def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
     """Open the dataset, run ``run(ds, *extra, out, cfg, executor)`` on the chosen cluster (or in process)."""
     from .distributed import ClusterConfig, executor
     from .io.dataset import Dataset
+    from .io.output import output_lock
 
     ds = Dataset.open(args.dataset, masks_dir=masks)
-    with executor(config_from_args(ClusterConfig, args)) as ex:
-        return ds, run(ds, *extra, args.out, config_from_args(cfg_type, args), ex)
+    out, lock_folder = _dataset_output(ds, args.out, "depth", lambda v: (f"{v.name}.npy", f"{v.name}.conf.npy",
+                                                                          f"{v.name}.normal.npy", f"{v.name}.png"))
+    with output_lock(lock_folder), executor(config_from_args(ClusterConfig, args)) as ex:
+        return ds, run(ds, *extra, out, config_from_args(cfg_type, args), ex)
+
+
+def _dataset_output(ds, out, default: str, names):
+    """A command that writes into a dataset (DATASET/``default``) or into ``out`` (-o): the output folder and
+    the folder to lock (the dataset, when the output lies in it). Refuses (``OutputError``, before anything is
+    written) an output that is or holds the dataset, lies in or holds its images, masks or cameras, or is a
+    folder photorecon did not write holding a file it would replace (``names(view)``: the files per view)."""
+    from pathlib import Path
+
+    from .io.output import check_apart, check_foreign_files
+
+    root = Path(ds.root)
+    out = Path(out) if out else root / default
+    inputs = {Path(ds.image_path(v)).parent for v in ds.views} | {root, root / "sparse", root / "transforms.json"}
+    if ds.masks_dir is not None:
+        inputs.add(Path(ds.masks_dir))
+    check_apart(out, tuple(sorted(inputs)), may_hold=(root,))
+    check_foreign_files(out, [n for v in ds.views for n in names(v)])
+    inside = out.resolve().is_relative_to(root.resolve())
+    return out, root if inside else out
 
 
 def _run_mvs(args):
@@ -518,10 +541,23 @@ def _run_texture(args):
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     check_config(cfg)
+    from .io.dataset import Dataset
+    from .io.output import output_lock
+
+    ds = Dataset.open(args.dataset)
     dest = Path(args.out) if args.out else None
     if dest is not None and dest.resolve() in (Path(args.dataset).resolve(), *Path(args.dataset).resolve().parents):
         raise OutputError(f"-o {dest}: would replace the input folder; choose a new folder")
-    info = texture_output(args.dataset, cfg, args.mesh, dest)
+    target = dest or Path(args.dataset) / "textured"
+    # the folder is replaced as a whole: refuse one holding files photorecon did not write
+    _, lock_folder = _dataset_output(ds, target, "textured",
+                                     lambda v: [p.name for p in target.iterdir()] if target.is_dir() else [])
+    if args.mesh:
+        from .io.output import check_apart
+
+        check_apart(target, (args.mesh,))
+    with output_lock(lock_folder):
+        info = texture_output(args.dataset, cfg, args.mesh, dest)
     print(f"texture: {info['faces']} faces, {info['charts']} charts from {info['views_used']} views, "
           f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "
           "texture.png), mesh.glb, preview.png")

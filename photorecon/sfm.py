@@ -429,7 +429,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         return {"masks": n}
 
     ext = stages.run("extraction", {"cameras": cameras, "sift": sift, "masks": masks and fingerprint(masks)},
-                     extraction, outputs=[features, work_masks])
+                     extraction, outputs=[features, work_masks], optional=[work_masks])
 
     with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
     matching = choose_matching(cfg, len(names), with_gps)
@@ -461,7 +461,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     undistorted = work / "undistorted"
     stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out, undistorted,
                                                      work_masks if ext.get("masks") else None),
-               outputs=[layout.images, undistorted, layout.masks])
+               outputs=[layout.images, undistorted, layout.masks], optional=[layout.masks])
     model = publish(undistorted, out)
     secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,
