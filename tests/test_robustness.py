@@ -1,0 +1,280 @@
+"""Robustness under the inputs people really have: outputs that hold their inputs, two runs on one output,
+damaged and unusual image files, a full disk, rounded camera files, results in another frame than the truth.
+Small synthetic inputs; every refusal is checked to leave the inputs byte for byte as they were."""
+import json
+import logging
+import os
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import tree_hash
+from photorecon.cli import main
+from photorecon.errors import BadArgumentError, OutputError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cli(*args, timeout=120):
+    """photorecon in a fresh process (its own PID, signals, exit code)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    return subprocess.run([sys.executable, "-m", "photorecon", *map(str, args)], capture_output=True, text=True,
+                          env=env, timeout=timeout, cwd=ROOT)
+
+
+@pytest.fixture
+def ds(blob_small, tmp_path):
+    """A private copy of the small synthetic dataset (a photorecon output: synth wrote it)."""
+    dst = tmp_path / "DS"
+    shutil.copytree(blob_small, dst)
+    return dst
+
+
+def _error_line(err: str) -> str:
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert lines, "no error message"
+    return lines[-1]
+
+
+# --- 1. an output never writes into, replaces or deletes an input ---------------------------------------------
+@pytest.mark.parametrize("argv", [
+    ["reconstruct", "{DS}/images", "-o", "{DS}"],
+    ["reconstruct", "{DS}/images", "-o", "{DS}", "--overwrite"],
+    ["sfm", "{DS}/images", "-o", "{DS}"],
+    ["reconstruct", "{DS}/images", "-o", "{DS}/..", "--overwrite"],
+    ["fuse", "{DS}", "-o", "{DS}/.."],
+    ["reconstruct", "{DS}/images", "-o", "{tmp}/out", "--depth", "{tmp}/out/depth_in"],
+])
+def test_output_holding_an_input_is_refused_and_input_unchanged(ds, tmp_path, capsys, argv):
+    (tmp_path / "out" / "depth_in").mkdir(parents=True)
+    argv = [a.format(DS=ds, tmp=tmp_path) for a in argv]
+    before = tree_hash(tmp_path)
+    assert main(argv) == OutputError.exit_code
+    msg = capsys.readouterr().err.strip()
+    assert len(msg.splitlines()) == 1 and "input" in msg and "outside" in msg, msg
+    assert tree_hash(tmp_path) == before
+
+
+def test_user_folder_with_images_and_overwrite_is_refused(tmp_path, blob_small, capsys):
+    """A user's project folder (not written by photorecon) holding the photos in images/: ``-o proj
+    --overwrite`` would replace them by undistorted copies."""
+    proj = tmp_path / "proj"
+    shutil.copytree(blob_small / "images", proj / "images")
+    (proj / "notes.txt").write_text("mine")
+    before = tree_hash(proj)
+    assert main(["reconstruct", str(proj / "images"), "-o", str(proj), "--overwrite"]) == 8
+    assert "outside" in capsys.readouterr().err
+    assert tree_hash(proj) == before
+
+
+def test_overwrite_never_replaces_a_file_photorecon_did_not_write(ds, tmp_path, capsys):
+    """--overwrite on a folder photorecon did not write: refused when a path photorecon would write is there
+    (named in the message), allowed next to unrelated files, which stay as they were."""
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "mesh.ply").write_text("my own mesh")
+    (foreign / "notes.txt").write_text("mine")
+    before = tree_hash(foreign)
+    assert main(["fuse", str(ds), "-o", str(foreign), "--overwrite"]) == 8
+    err = capsys.readouterr().err
+    assert "mesh.ply" in err and "--overwrite never replaces" in err
+    assert tree_hash(foreign) == before
+    (foreign / "mesh.ply").unlink()
+    assert main(["-q", "fuse", str(ds), "-o", str(foreign), "--overwrite"]) == 0
+    assert (foreign / "notes.txt").read_text() == "mine" and (foreign / "mesh.ply").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("cmd,out", [("mvs", "images"), ("mvs", "."), ("mvs", ".."), ("mvs", "masks"),
+                                     ("texture", "images"), ("texture", "sparse/0")])
+def test_dataset_commands_refuse_an_output_over_the_dataset_inputs(ds, cmd, out, capsys):
+    before = tree_hash(ds.parent)
+    assert main([cmd, str(ds), "-o", str(ds / out)]) == 8
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert tree_hash(ds.parent) == before
+
+
+def test_mvs_output_never_replaces_files_photorecon_did_not_write(ds, tmp_path, capsys):
+    """``mvs -o DIR`` writes NAME.png previews: a folder of the user's own PNGs with those names is refused."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    shutil.copy(ds / "images" / "view_000.png", photos / "view_000.png")
+    before = tree_hash(photos)
+    assert main(["mvs", str(ds), "-o", str(photos)]) == 8
+    assert "view_000.png" in capsys.readouterr().err
+    assert tree_hash(photos) == before
+
+
+# --- 2. one run per output folder; a stage is complete only with all its outputs -----------------------------
+def test_second_run_on_a_locked_output_names_the_holder_and_exits_8(tmp_path):
+    """Two runs on one output: the second stops at once, naming the process that holds the folder, and
+    writes nothing; the first's lock is untouched."""
+    from photorecon.io.output import LOCK, output_lock
+
+    out = tmp_path / "out"
+    out.mkdir()
+    with output_lock(out):
+        info = json.loads((out / LOCK).read_text())
+        assert info["pid"] == os.getpid() and info["host"] == socket.gethostname()
+        r = _cli("synth", "-o", out, "--views", "2", "--width", "32", "--height", "24", "--points", "10")
+        assert r.returncode == 8, r.stderr
+        line = _error_line(r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+        assert f"process {os.getpid()}" in line and "in use" in line
+        assert sorted(p.name for p in out.iterdir()) == [LOCK]
+    assert not (out / LOCK).exists()  # released
+
+
+def test_two_concurrent_runs_on_one_output_the_second_exits_8(tmp_path, blob_small):
+    """A run started on an output while another writes it (here sfm while synth renders): it exits 8 naming
+    the first's process id and writes nothing; the first completes its output and removes the lock."""
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    second_args = ["sfm", str(blob_small / "images"), "-o", str(out)]
+    # the second process imports photorecon first, then starts as soon as the first holds the lock
+    second = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time, pathlib; from photorecon.cli import build_parser, main\n"
+         "build_parser()\n"  # every command's imports done before the wait
+         f"lock = pathlib.Path({str(out / '.photorecon.lock')!r})\n"
+         "t = time.time()\nwhile not lock.exists() and time.time() - t < 60: time.sleep(0.005)\n"
+         f"sys.exit(main({second_args!r}))"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+        env=env, cwd=ROOT)
+    first = subprocess.Popen([sys.executable, "-m", "photorecon", "synth", "-o", str(out), "--views", "16",
+                              "--width", "320", "--height", "240", "--points", "50"],
+                             stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env, cwd=ROOT)
+    (c1, e1), (c2, e2) = [(p.wait(timeout=120), p.stderr.read()) for p in (first, second)]
+    assert c1 == 0, e1
+    assert c2 == 8, e2
+    assert f"in use by another photorecon run (process {first.pid} on" in e2
+    assert len(list((out / "images").glob("*.png"))) == 16 and not (out / ".photorecon.lock").exists()
+    assert not (out / "colmap").exists()
+
+
+def _dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_stale_lock_of_a_dead_process_is_taken_over(tmp_path, caplog):
+    from photorecon.io.output import LOCK
+
+    out = tmp_path / "out"
+    out.mkdir()
+    pid = _dead_pid()
+    (out / LOCK).write_text(json.dumps({"pid": pid, "host": socket.gethostname(), "started": "yesterday"}))
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        assert main(["-q", "synth", "-o", str(out), "--views", "2", "--width", "32", "--height", "24",
+                     "--points", "10"]) == 0
+    assert any(f"process {pid}" in r.getMessage() and "no longer running" in r.getMessage() for r in caplog.records)
+    assert len(list((out / "images").glob("*.png"))) == 2
+    assert not (out / LOCK).exists()
+
+
+def test_lock_is_released_on_error_and_interrupt(tmp_path):
+    from photorecon.io.output import LOCK, output_folder
+
+    out = tmp_path / "out"
+    for exc in (KeyboardInterrupt(), OutputError("boom")):
+        with pytest.raises(type(exc)):
+            with output_folder(out):
+                assert (out / LOCK).exists()
+                raise exc
+        assert not (out / LOCK).exists()
+    r = _cli("synth", "-o", out, "--views", "2", "--width", "32", "--height", "24", "--points", "10")
+    assert r.returncode == 0, r.stderr
+
+
+def test_stage_without_its_outputs_is_not_marked_complete(tmp_path):
+    from photorecon.stages import Stages
+
+    stages = Stages(tmp_path / ".stages")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(OutputError, match="empty"):
+        stages.run("s", {}, lambda: None, outputs=[tmp_path / "empty"])
+    assert not (tmp_path / ".stages" / "s.json").exists()
+    # an optional output may be missing; a required one present completes the stage
+    (tmp_path / "a.txt").write_text("x")
+    stages.run("s", {}, lambda: None, outputs=[tmp_path / "a.txt", tmp_path / "masks"], optional=[tmp_path / "masks"])
+    assert (tmp_path / ".stages" / "s.json").exists()
+
+
+def test_depth_stage_needs_every_view_it_reports(tmp_path):
+    from photorecon.layout import Layout
+    from photorecon.pipeline import _check_depth_written
+
+    layout = Layout(tmp_path)
+    layout.depth.mkdir()
+    np.save(layout.depth_map("a"), np.ones((2, 2), np.float32))
+    np.save(layout.depth / "b.conf.npy", np.ones((2, 2), np.float32))
+    _check_depth_written(layout, 1, ["a"])
+    with pytest.raises(OutputError, match="b.npy"):
+        _check_depth_written(layout, 2, ["a", "b"])
+    with pytest.raises(OutputError, match="2 depth maps"):
+        _check_depth_written(layout, 2)
+
+
+# --- 14. rounded rotations in camera files ------------------------------------------------------------------------
+def _blender_file(tmp_path, matrices):
+    from PIL import Image
+
+    (tmp_path / "train").mkdir(parents=True)
+    frames = []
+    for i, M in enumerate(matrices):
+        Image.new("RGB", (40, 30)).save(tmp_path / "train" / f"r_{i}.png")
+        frames.append({"file_path": f"./train/r_{i}", "transform_matrix": np.asarray(M).tolist()})
+    path = tmp_path / "transforms_train.json"
+    path.write_text(json.dumps({"camera_angle_x": 0.69, "frames": frames}))
+    return path
+
+
+def test_float32_rounded_rotations_are_accepted_and_snapped(tmp_path):
+    """NeRF-synthetic's transforms_train.json holds rotations computed in float32 (Blender lego: deviations up
+    to ~1e-5): read as the nearest rotation; a scaled matrix (1 %) is still refused, naming the frame."""
+    from scipy.spatial.transform import Rotation
+
+    from photorecon.errors import InputDataError
+    from photorecon.io.dataset import read_model
+
+    rng = np.random.default_rng(0)
+    exact = []
+    for k in range(3):
+        M = np.eye(4)
+        M[:3, :3] = Rotation.random(random_state=k).as_matrix()
+        M[:3, 3] = rng.normal(size=3) * 4
+        exact.append(M)
+    rounded = [M.astype(np.float32).astype(np.float64) for M in exact]
+    rounded[1][:3, :3] += rng.normal(scale=2e-5, size=(3, 3))  # a few-digit export: deviation ~1e-5 .. 1e-4
+    dev = max(np.abs(M[:3, :3].T @ M[:3, :3] - np.eye(3)).max() for M in rounded)
+    assert 1e-6 < dev < 1e-3
+    views = read_model(_blender_file(tmp_path / "ok", rounded)).views
+    for k, (v, M) in enumerate(zip(views, exact)):
+        R = v.cam_from_world[:3, :3]
+        # float32 rounding alone (~1e-7) is within ORTHO_TOL and kept; the larger deviation is snapped
+        assert np.abs(R.T @ R - np.eye(3)).max() < (1e-12 if k == 1 else 1e-6) and np.linalg.det(R) > 0
+        c2w_gl = np.linalg.inv(v.cam_from_world)  # camera centre back in the file's world
+        assert np.allclose(c2w_gl[:3, 3], M[:3, 3], atol=1e-5)
+    scaled = [M.copy() for M in exact]
+    scaled[2][:3, :3] *= 1.01
+    with pytest.raises(InputDataError, match="frame 2.*orthonormal.*scale or shear"):
+        read_model(_blender_file(tmp_path / "bad", scaled))
+
+
+def test_rotation_snapping_keeps_exact_rotations_and_refuses_reflections():
+    from photorecon._validate import as_rigid, as_rotation
+
+    R = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    assert as_rotation(R) is not None and np.array_equal(as_rotation(R), R)
+    T = np.eye(4)
+    T[:3, :3] = R + 3e-5
+    S = as_rigid(T)
+    assert np.abs(S[:3, :3] - R).max() < 1e-4 and np.abs(S[:3, :3].T @ S[:3, :3] - np.eye(3)).max() < 1e-12
+    assert np.array_equal(T[:3, :3], R + 3e-5)  # the caller's array is left as it was
+    with pytest.raises(BadArgumentError, match="det"):
+        as_rotation(np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(BadArgumentError, match="scale or shear"):
+        as_rotation(np.array([[1.0, 0.01, 0], [0, 1, 0], [0, 0, 1]]))
