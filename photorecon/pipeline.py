@@ -106,12 +106,12 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
     fusion stages use it as a mask."""
     from .cameras import View
     from .io.colmap_text import SparseModel
-    from .io.images import mask_file, read_alpha, read_image, read_mask, write_image
+    from .io.images import damaged_image, mask_file, read_alpha, read_image, read_mask, write_image
 
     layout = Layout(out)
     img_out, mask_out = layout.images, layout.masks
     img_out.mkdir(parents=True, exist_ok=True)
-    views = []
+    views, damaged = [], []
     for v in model.views:
         name = v.image_file or v.name
         src = images_dir / name
@@ -120,7 +120,20 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
             if not cands:
                 raise InputDataError(f"view {v.name}: image {name} not found in {images_dir}")
             src = cands[0]
-        img = read_image(src)
+        # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
+        why = damaged_image(src) if src.suffix.lower() in (".jpg", ".jpeg") else None
+        img = None
+        if not why:
+            try:
+                img = read_image(src)
+            except InputDataError:
+                why = damaged_image(src)
+                if not why:
+                    raise
+        if why:
+            log.warning("view %s: image %s is %s; view skipped", v.name, src, why)
+            damaged.append(v.name)
+            continue
         if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
             raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
@@ -147,6 +160,10 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
         else:
             mask_path.unlink(missing_ok=True)  # a stale mask from an earlier run with other images
         views.append(View(v.name, intr, v.cam_from_world, image_file=dst_name))
+    if damaged and len(views) < 2:
+        raise InputDataError(f"{images_dir}: {len(views)} usable image(s) for the given cameras"
+                             + (f" ({len(damaged)} truncated or damaged: {', '.join(damaged[:5])})" if damaged else "")
+                             + "; at least 2 needed")
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 
 

@@ -144,15 +144,18 @@ def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
     return match_masks(masks, {p.name: image_size(p) for p in paths})
 
 
-def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path) -> int:
+def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path,
+                       photo_names: dict[str, str] | None = None) -> int:
     """COLMAP's mask layout in ``dst``: ``NAME.EXT.png`` (uint8, 0 = no features there, 255 = use) for each of
     ``images`` ((name, width, height) in ``images_dir``) that has a mask in the user's folder ``masks``
-    (NAME.EXT.png or NAME.png), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
+    (NAME.EXT.png or NAME.png of the photo's name: ``photo_names`` maps a working name to it where they
+    differ), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
     from .io.images import mask_file, read_alpha, read_mask, write_image
 
+    photo_names = photo_names or {}
     n = 0
     for name, w, h in images:
-        p = mask_file(masks, name) if masks else None
+        p = mask_file(masks, photo_names.get(name, name)) if masks else None
         if p is not None:
             m = read_mask(p, (w, h), f"image {name}")
         else:
@@ -383,7 +386,7 @@ def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
         else:
             ing = ingest_folder(src, tmp, min_images=1)
     return {"images": [[im.name, im.width, im.height, im.focal_prior_px] for im in ing.images],
-            "skipped": ing.skipped}
+            "skipped": ing.skipped, "renamed": ing.renamed}
 
 
 def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False,
@@ -411,7 +414,9 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None}
     ing = stages.run("ingest", ingest_params, lambda: _ingest(src, work / "images", cfg.video_every),
                      outputs=[work / "images"])
-    images = [IngestedImage(name, src if src.is_file() else src / name, w, h, f) for name, w, h, f in ing["images"]]
+    renamed = ing.get("renamed", {})  # working name -> photo name, for photos ingested as PNG copies (WebP)
+    images = [IngestedImage(name, src if src.is_file() else src / renamed.get(name, name), w, h, f)
+              for name, w, h, f in ing["images"]]
     if len(images) < 2:
         raise SfMError(f"{images_dir}: only one readable image ({images[0].name}); SfM needs at least 2 "
                        "overlapping photos")
@@ -424,7 +429,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     def extraction() -> dict:
         with atomic_dir(work_masks) as tmp:
-            n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp)
+            n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp,
+                                   renamed)
         extract(work / "images", features, cameras, cfg, work_masks if n else None)
         return {"masks": n}
 

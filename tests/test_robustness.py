@@ -278,3 +278,122 @@ def test_rotation_snapping_keeps_exact_rotations_and_refuses_reflections():
         as_rotation(np.diag([1.0, 1.0, -1.0]))
     with pytest.raises(BadArgumentError, match="scale or shear"):
         as_rotation(np.array([[1.0, 0.01, 0], [0, 1, 0], [0, 0, 1]]))
+
+
+# --- 4. truncated photos ------------------------------------------------------------------------------------------
+def _jpeg_folder(src, dst, n=None):
+    import cv2
+
+    dst.mkdir(parents=True)
+    for p in sorted(src.glob("*.png"))[:n]:
+        cv2.imwrite(str(dst / f"{p.stem}.jpg"), cv2.imread(str(p)), [cv2.IMWRITE_JPEG_QUALITY, 95])
+    return dst
+
+
+def _truncate(path, fraction=0.5):
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * fraction)])
+
+
+def test_truncated_jpeg_is_skipped_at_ingest_with_a_warning(blob_small, tmp_path, caplog):
+    """OpenCV decodes a JPEG cut in half without an error (grey rows from the cut on): ingest finds it with a
+    full decode and skips it, naming it in one warning line; a cut PNG the same way."""
+    import cv2
+
+    from photorecon.ingest import ingest_folder
+
+    photos = _jpeg_folder(blob_small / "images", tmp_path / "photos", 4)
+    shutil.copy(blob_small / "images" / "view_005.png", photos / "view_005.png")
+    _truncate(photos / "view_001.jpg")
+    _truncate(photos / "view_005.png", 0.6)
+    assert cv2.imread(str(photos / "view_001.jpg")) is not None  # what the check exists for
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        ing = ingest_folder(photos, tmp_path / "work")
+    assert [im.name for im in ing.images] == ["view_000.jpg", "view_002.jpg", "view_003.jpg"]
+    warn = [r.getMessage() for r in caplog.records if "truncated" in r.getMessage()]
+    assert len(warn) == 1 and "view_001.jpg" in warn[0] and "view_005.png" in warn[0] and "\n" not in warn[0]
+    assert sorted(p.name for p in (tmp_path / "work").iterdir()) == ["view_000.jpg", "view_002.jpg", "view_003.jpg"]
+
+
+def test_too_few_complete_photos_is_the_usual_error(blob_small, tmp_path):
+    from photorecon.errors import NoImagesError
+    from photorecon.ingest import ingest_folder
+
+    photos = _jpeg_folder(blob_small / "images", tmp_path / "photos", 3)
+    for p in list(photos.iterdir())[:2]:
+        _truncate(p)
+    with pytest.raises(NoImagesError, match="1 readable image"):
+        ingest_folder(photos, tmp_path / "work", min_images=2)
+
+
+def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, caplog):
+    from photorecon.errors import InputDataError
+    from photorecon.io.dataset import read_model
+    from photorecon.pipeline import _undistort_given
+
+    photos = _jpeg_folder(blob_small / "images", tmp_path / "photos")
+    _truncate(photos / "view_004.jpg")
+    model = read_model(blob_small / "sparse" / "0")
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        out = _undistort_given(model, photos, tmp_path / "out")
+    assert [v.name for v in out.views] == [v.name for v in model.views if v.name != "view_004"]
+    assert any("view_004.jpg" in r.getMessage() and "truncated" in r.getMessage() for r in caplog.records)
+    assert not (tmp_path / "out" / "images" / "view_004.png").exists()
+    for p in list(photos.iterdir()):
+        if p.name != "view_000.jpg":
+            _truncate(p)
+    with pytest.raises(InputDataError, match="1 usable image.*truncated or damaged"):
+        _undistort_given(model, photos, tmp_path / "out2")
+
+
+# --- 5. every listed image format works end to end -------------------------------------------------------------
+def test_webp_photos_are_ingested_as_png_copies(blob_small, tmp_path):
+    """COLMAP's reader cannot decode WebP: ingest writes a PNG copy (NAME.png, or NAME.webp.png when a photo
+    is already named NAME.png), pixels and alpha as decoded, and records the photo's name."""
+    import cv2
+    from PIL import Image
+
+    from photorecon.ingest import ingest_folder
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rgb = cv2.imread(str(blob_small / "images" / "view_000.png"))[..., ::-1]
+    Image.fromarray(rgb).save(photos / "a.webp", lossless=True)
+    Image.fromarray(rgb).save(photos / "b.webp", lossless=True)
+    shutil.copy(blob_small / "images" / "view_001.png", photos / "b.png")
+    alpha = np.zeros(rgb.shape[:2], np.uint8)
+    alpha[20:80, 30:120] = 255
+    Image.fromarray(np.dstack([rgb, alpha])).save(photos / "c.webp", lossless=True)
+    ing = ingest_folder(photos, tmp_path / "work")
+    assert sorted(im.name for im in ing.images) == ["a.png", "b.png", "b.webp.png", "c.png"]
+    assert ing.renamed == {"a.png": "a.webp", "b.webp.png": "b.webp", "c.png": "c.webp"}
+    work = tmp_path / "work"
+    assert np.array_equal(cv2.imread(str(work / "a.png"))[..., ::-1], rgb)
+    assert np.array_equal(cv2.imread(str(work / "b.png")), cv2.imread(str(photos / "b.png")))  # the PNG as it was
+    assert np.array_equal(cv2.imread(str(work / "c.png"), cv2.IMREAD_UNCHANGED)[..., 3], alpha)
+
+
+@pytest.mark.slow
+def test_sfm_registers_webp_photos_among_pngs(ring16, tmp_path):
+    """Half the photos WebP (lossless), half PNG: every photo registers, with poses as accurate as the PNGs'."""
+    from PIL import Image
+
+    from photorecon.io.dataset import read_model
+    from photorecon.metrics import pose_metrics
+    from photorecon.sfm import run_sfm
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for k, p in enumerate(sorted((ring16 / "images").glob("*.png"))):
+        if k % 2:
+            Image.open(p).save(photos / f"{p.stem}.webp", lossless=True)
+        else:
+            shutil.copy(p, photos / p.name)
+    before = tree_hash(photos)
+    res = run_sfm(photos, tmp_path / "out")
+    assert len(res.registered) == 16 and not res.unregistered
+    est = read_model(tmp_path / "out" / "sparse" / "0")
+    assert sorted(v.image_file for v in est.views) == sorted(f"view_{k:03d}.png" for k in range(16))
+    m = pose_metrics(est.views, read_model(ring16 / "sparse" / "0").views)
+    assert m["registered"] == 16 and m["rot_mean_deg"] < 0.3, m
+    assert tree_hash(photos) == before
