@@ -556,7 +556,9 @@ def _run_texture(args):
         from .io.output import check_apart
 
         check_apart(target, (args.mesh,))
-    with output_lock(lock_folder):
+    # the textured folder is replaced as a whole: locked from beside it when it lies outside the dataset
+    lock_file = None if lock_folder != target else target.parent / f".{target.name}.photorecon.lock"
+    with output_lock(lock_folder, lock_file):
         info = texture_output(args.dataset, cfg, args.mesh, dest)
     print(f"texture: {info['faces']} faces, {info['charts']} charts from {info['views_used']} views, "
           f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "

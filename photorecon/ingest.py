@@ -14,6 +14,7 @@ import numpy as np
 from .cameras import Intrinsics
 from .errors import BadArgumentError, InputDataError, NoImagesError
 from .io.atomic import atomic_path
+from .io.images import image_write_failed
 
 log = logging.getLogger("photorecon")
 
@@ -120,7 +121,7 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
                 elif orientation in (0, 1):
                     shutil.copyfile(p, tmp)  # byte copy keeps EXIF for COLMAP
                 elif not cv2.imwrite(str(tmp), img):
-                    raise InputDataError(f"{p}: could not write the oriented copy")
+                    image_write_failed(dst, img.nbytes)
         out.append(IngestedImage(name, p, W, H, focal_frac * max(W, H) if focal_frac else None))
     if truncated:
         log.warning("skipped %d truncated or damaged image file(s) (an incomplete copy or download?): %s",
@@ -187,7 +188,8 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
                 name = f"frame_{k:05d}.png"
                 if not (work / name).exists():
                     with atomic_path(work / name) as tmp:
-                        cv2.imwrite(str(tmp), frame)
+                        if not cv2.imwrite(str(tmp), frame):
+                            image_write_failed(work / name, frame.nbytes)
                 H, W = frame.shape[:2]
                 out.append(IngestedImage(name, video, W, H))
             k += 1

@@ -23,6 +23,7 @@ from typing import Callable, Iterable
 
 from .errors import OutputError
 from .io.atomic import atomic_write_json
+from .io.space import is_no_space, no_space_error
 from .resources import measure
 
 log = logging.getLogger("photorecon")
@@ -65,15 +66,18 @@ def replace_dir(src: str | Path, dst: str | Path) -> Path:
 @contextmanager
 def atomic_dir(path: str | Path):
     """Yield an empty temporary folder next to ``path``; on success it replaces ``path`` (an interrupted
-    write leaves ``path`` as it was and removes the temporary folder)."""
+    write leaves ``path`` as it was and removes the temporary folder; a full disk raises ``OutputError``
+    naming ``path`` and its device)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
         yield tmp
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if is_no_space(exc):
+            raise no_space_error(path) from None
         raise
     replace_dir(tmp, path)
 

@@ -397,3 +397,89 @@ def test_sfm_registers_webp_photos_among_pngs(ring16, tmp_path):
     m = pose_metrics(est.views, read_model(ring16 / "sparse" / "0").views)
     assert m["registered"] == 16 and m["rot_mean_deg"] < 0.3, m
     assert tree_hash(photos) == before
+
+
+# --- 6. a full disk --------------------------------------------------------------------------------------------------
+@pytest.fixture
+def small_disk(tmp_path):
+    """``small_disk(size)``: a fresh tmpfs of ``size`` (e.g. "2500k") mounted in the test's folder; skipped
+    where mounting is not permitted (not root, or in a container without the capability)."""
+    mounted = []
+
+    def make(size):
+        if os.geteuid() != 0 or not shutil.which("mount"):
+            pytest.skip("mounting a small tmpfs needs root")
+        mnt = tmp_path / f"disk_{size}"
+        mnt.mkdir()
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True,
+                           text=True)
+        if r.returncode:
+            pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+        mounted.append(mnt)
+        return mnt
+
+    yield make
+    for m in mounted:
+        subprocess.run(["umount", "-l", str(m)], capture_output=True)
+
+
+def _hidden_files(folder):
+    return [p for p in folder.rglob(".*") if p.is_file() and p.name not in (".photorecon",)
+            and ".stages" not in p.parts and ".mvs_work" not in p.parts]
+
+
+def test_full_disk_before_sfm_features_is_one_line_and_exit_8(blob_small, small_disk, capsys):
+    """SfM on a disk too small for the feature database: refused before COLMAP's SQLite writer (which aborts
+    the process on a full disk) starts, one line naming the file and the device; the temporary databases an
+    aborted run left are removed."""
+    disk = small_disk("2500k")
+    out = disk / "out"
+    (out / "colmap").mkdir(parents=True)
+    (out / ".photorecon").write_text("written by photorecon\n")
+    for name in (".features.abc123.db", ".features.abc123.db-journal", ".database.x.db-wal"):
+        (out / "colmap" / name).write_bytes(b"\0" * 1000)  # what an aborted run leaves
+    assert main(["-q", "sfm", str(blob_small / "images"), "-o", str(out)]) == 8
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "features.db: no space left on device" in err and str(disk) in err and "tmpfs" in err
+    assert not (out / "colmap" / "features.db").exists() and _hidden_files(out) == []
+
+
+def test_full_disk_during_mvs_is_one_line_and_keeps_no_partial_file(blob_small, small_disk, capsys):
+    """numpy's short write (``OSError: N requested and M written``, no errno) on a full disk: the output error
+    (exit 8) naming the file and the device, and no half-written file left."""
+    disk = small_disk("120k")
+    assert main(["-q", "mvs", str(blob_small), "-o", str(disk / "depth"), "--max-size", "160"]) == 8
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert ".npy: no space left on device" in err and str(disk) in err
+    assert _hidden_files(disk) == []
+    for f in disk.rglob("*.npy"):  # what is kept (finished tasks, for a re-run) is whole
+        np.load(f)
+
+
+def test_write_over_a_file_size_limit_is_the_no_space_error(tmp_path):
+    """Without root: RLIMIT_FSIZE (SIGXFSZ ignored) makes writes fail with EFBIG, as a full quota would;
+    atomic writes turn that into the one-line OutputError and remove their temporary file."""
+    script = (
+        "import resource, signal, sys, numpy as np\n"
+        "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536))\n"
+        "from photorecon.errors import OutputError\n"
+        "from photorecon.io.atomic import atomic_path, atomic_write_text\n"
+        "for how in ('npy', 'text'):\n"
+        "    try:\n"
+        "        if how == 'npy':\n"
+        "            with atomic_path(sys.argv[1] + '/big.npy') as tmp:\n"
+        "                np.save(tmp, np.zeros(100000, np.float32))\n"
+        "        else:\n"
+        "            atomic_write_text(sys.argv[1] + '/big.txt', 'x' * 200000)\n"
+        "    except OutputError as exc:\n"
+        "        print(exc)\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-c", script, str(tmp_path)], capture_output=True, text=True, env=env)
+    lines = r.stdout.strip().splitlines()
+    assert r.returncode == 0 and len(lines) == 2, r.stderr
+    assert lines[0].startswith(f"{tmp_path}/big.npy: no space left on device")
+    assert lines[1].startswith(f"{tmp_path}/big.txt: no space left on device")
+    assert list(tmp_path.iterdir()) == []

@@ -177,8 +177,20 @@ def write_image(path: str | Path, img: np.ndarray) -> Path:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), img):
-            raise InputDataError(f"{path}: could not write image")
+            image_write_failed(path, img.nbytes)
     return path
+
+
+def image_write_failed(path: Path, nbytes: int) -> None:
+    """A writer that only says it failed (OpenCV): ``OutputError``, "no space left" when the disk is nearly
+    full."""
+    from ..errors import OutputError
+    from .space import free_bytes, no_space_error
+
+    free = free_bytes(path.parent)
+    if free is not None and free < max(nbytes, 1 << 20):
+        raise no_space_error(path)
+    raise OutputError(f"{path}: could not write the image; check the folder's permissions and space")
 
 
 def depth_preview(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:

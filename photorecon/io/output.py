@@ -196,8 +196,7 @@ def _in_use(folder: Path, info: dict, path: Path) -> OutputError:
                        f"it to finish or choose another output folder (if no such run is going on, remove {path})")
 
 
-def _acquire(folder: Path) -> int:
-    path = folder / LOCK
+def _acquire(folder: Path, path: Path) -> int:
     me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%d %H:%M:%S %z"),
           "command": " ".join(["photorecon", *sys.argv[1:]])[:300] if sys.argv and sys.argv[0] else ""}
     for _ in range(20):
@@ -246,8 +245,7 @@ def _acquire(folder: Path) -> int:
     raise OutputError(f"output folder {folder}: could not take its lock {path}; is another run starting there?")
 
 
-def _release(folder: Path, fd: int) -> None:
-    path = folder / LOCK
+def _release(path: Path, fd: int) -> None:
     try:
         if os.fstat(fd).st_ino == os.stat(path).st_ino:
             path.unlink()
@@ -258,11 +256,19 @@ def _release(folder: Path, fd: int) -> None:
 
 
 @contextmanager
-def output_lock(folder: str | Path):
-    """Hold ``folder``'s lock (see the module docstring) for the block; ``OutputError`` when another live run
-    holds it. Nested use on a folder this process already holds is allowed."""
+def output_lock(folder: str | Path, path: str | Path | None = None):
+    """Hold ``folder``'s lock (see the module docstring) for the block, creating the folder if needed;
+    ``OutputError`` when another live run holds it. Nested use on a folder this process already holds is
+    allowed. ``path``: the lock file, when not ``folder``/.photorecon.lock (a folder that is replaced as a
+    whole is locked from beside it)."""
     folder = Path(folder)
-    key = str(_resolve(folder))
+    path = Path(path) if path else folder / LOCK
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"output folder {folder}: cannot write there ({exc.strerror or exc}); "
+                          "choose a writable folder") from None
+    key = str(_resolve(path))
     if key in _HELD:
         _HELD[key][1] += 1
         try:
@@ -270,10 +276,10 @@ def output_lock(folder: str | Path):
         finally:
             _HELD[key][1] -= 1
         return
-    fd = _acquire(folder)
+    fd = _acquire(folder, path)
     _HELD[key] = [fd, 1]
     try:
         yield folder
     finally:
         del _HELD[key]
-        _release(folder, fd)
+        _release(path, fd)
