@@ -93,7 +93,9 @@ def eval_cmd(sub):
                                    f"{200_000} area-uniform samples per mesh, seed 0. A --gt with vertices and no "
                                    "faces is a reference point cloud (DTU / ETH3D / Tanks-and-Temples style): per "
                                    "tau, accuracy = fraction of result samples within tau of a reference point, "
-                                   "completeness = fraction of reference points within tau of the result, F-score.")
+                                   "completeness = fraction of reference points within tau of the result, F-score. "
+                                   "A result with cameras beside it (a reconstruct output's sparse/0) is first moved "
+                                   "into the truth's frame through the cameras (see --align-poses).")
     p.add_argument("--mesh", help="result mesh (or point cloud, against a point-cloud --gt)")
     p.add_argument("--gt", help="ground truth: a mesh, or a point cloud (PLY with vertices and no faces)")
     p.add_argument("--tau", type=_tau_list, metavar="T[,T...]",
@@ -103,6 +105,10 @@ def eval_cmd(sub):
                    help="ignore result samples farther than MARGIN (scene units) from the GT's bounding box: "
                         "background the reference does not cover; completeness is unaffected")
     p.add_argument("--icp", action="store_true", help="refine the result onto the truth with ICP first")
+    p.add_argument("--align-poses", action=argparse.BooleanOptionalAction, default=None,
+                   help="move the result into the truth's frame with the similarity that aligns its cameras to the "
+                        "truth's (same image names; cameras from --poses/--ref, else sparse/0 or transforms.json "
+                        "beside each file); default: when both sides have cameras")
     p.add_argument("--poses", help="estimated cameras: COLMAP folder or transforms.json")
     p.add_argument("--ref", help="reference cameras: COLMAP folder or transforms.json")
     p.add_argument("--json", dest="json_out", nargs="?", const="-", help="print JSON (or write it to a file)")
@@ -132,6 +138,15 @@ def _run_eval(args):
             raise BadArgumentError(f"--crop-to-reference: expected a margin >= 0, got {args.crop_to_reference}")
         gt = load_reference(args.gt)
         result = load_reference(args.mesh)
+        result, alignment, warning = _align_for_eval(result, gt, args)
+        if alignment:
+            report["alignment"] = alignment
+        if warning:
+            report["warnings"] = [warning]
+            if args.json_out == "-":  # the JSON on stdout carries it; say it on stderr too
+                import logging
+
+                logging.getLogger("photorecon").warning("warning: %s", warning)
         gt_pts = np.asarray(gt.vertices) if isinstance(gt, trimesh.Trimesh) else gt
         diag = float(np.linalg.norm(gt_pts.max(0) - gt_pts.min(0)))
         taus = args.tau or [0.01 * diag, 0.005 * diag]
@@ -170,6 +185,35 @@ def _run_eval(args):
     return 0
 
 
+def _align_for_eval(result, gt, args):
+    """``eval --mesh``: (the result in the truth's frame, the alignment's facts or None, a warning or None).
+    Cameras on both sides (--poses/--ref, else beside the files) align the result unless --no-align-poses;
+    without, a result whose bounding box does not match the truth's gets a warning."""
+    from .errors import BadArgumentError
+    from .io.dataset import read_model
+    from .metrics import align_by_cameras, cameras_beside, frames_differ
+
+    if args.align_poses is not False:
+        est = read_model(args.poses).views if args.poses else cameras_beside(args.mesh)
+        ref = read_model(args.ref).views if args.ref else cameras_beside(args.gt)
+        shared = len({v.name for v in est or ()} & {v.name for v in ref or ()})
+        if est and ref and shared >= 3:
+            moved, facts = align_by_cameras(result, est, ref)
+            return moved, facts, None
+        if args.align_poses:
+            found = ("no cameras beside " + (args.mesh if not est else args.gt) if not (est and ref)
+                     else f"{shared} image names in common")
+            raise BadArgumentError(f"--align-poses: needs the cameras of both sides with at least 3 image names in "
+                                   f"common (--poses and --ref, or sparse/0 or transforms.json beside each file); "
+                                   f"found {found}")
+    why = frames_differ(result, gt)
+    if why is None:
+        return result, None, None
+    hint = ("--align-poses aligns them through their cameras" if args.align_poses is False else
+            "give the cameras of both (--poses and --ref) to align them, or --icp for a small offset")
+    return result, None, f"{why}: are they in the same frame? {hint}"
+
+
 def _print_thresholds(rows: list[dict]) -> None:
     print(f"  {'tau':>10}  {'accuracy':>9}  {'completeness':>12}  {'F-score':>8}   (fractions within tau)")
     for t in rows:
@@ -177,6 +221,12 @@ def _print_thresholds(rows: list[dict]) -> None:
 
 
 def _print_report(report: dict) -> None:
+    a = report.get("alignment")
+    if a:
+        print(f"aligned through the cameras: {a['views']} shared views, scale {a['scale']:.6g}, camera centres "
+              f"within {a['camera_rms']:.4g} RMS ({100 * a['camera_rms_rel']:.3f}% of their spread)")
+    for w in report.get("warnings", []):
+        print(f"warning: {w}")
     if report.get("mesh", {}).get("reference") == "points":
         m = report["mesh"]
         crop = (f", {m['cropped']} left out beyond {m['crop_margin']:.4g} of its bounding box"

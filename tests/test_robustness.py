@@ -483,3 +483,77 @@ def test_write_over_a_file_size_limit_is_the_no_space_error(tmp_path):
     assert lines[0].startswith(f"{tmp_path}/big.npy: no space left on device")
     assert lines[1].startswith(f"{tmp_path}/big.txt: no space left on device")
     assert list(tmp_path.iterdir()) == []
+
+
+# --- 15. eval of a result in another frame than the truth ----------------------------------------------------------
+@pytest.fixture
+def result_in_sfm_frame(blob_small, tmp_path):
+    """A reconstruct-like output whose mesh and cameras are the truth's moved by a similarity (as SfM's frame
+    is): mesh.ply and sparse/0 in OUT, the truth with its cameras in DATA."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from photorecon.io.colmap_text import write_colmap_text
+    from photorecon.io.dataset import read_model
+    from photorecon.scale import apply_similarity
+
+    s, R, t = 0.25, Rotation.from_euler("xyz", [30, -50, 110], degrees=True).as_matrix(), np.array([0.3, -0.1, 0.2])
+    out = tmp_path / "OUT"
+    out.mkdir()
+    gt = trimesh.load(blob_small / "gt_mesh.ply", process=False)
+    moved = gt.copy()
+    moved.vertices = s * np.asarray(gt.vertices) @ R.T + t
+    moved.export(out / "mesh.ply")
+    write_colmap_text(apply_similarity(read_model(blob_small / "sparse" / "0"), s, R, t), out / "sparse" / "0")
+    return out, blob_small
+
+
+@pytest.fixture
+def fewer_samples(monkeypatch):
+    """eval's mesh metrics on 5,000 samples per mesh instead of 200,000 (distance queries from far-off samples
+    take seconds each)."""
+    import functools
+
+    from photorecon import metrics
+
+    monkeypatch.setattr(metrics, "mesh_metrics", functools.partial(metrics.mesh_metrics, n_samples=5000))
+
+
+def test_eval_aligns_a_result_through_its_cameras(result_in_sfm_frame, fewer_samples, capsys):
+    out, data = result_in_sfm_frame
+    argv = ["eval", "--mesh", str(out / "mesh.ply"), "--gt", str(data / "gt_mesh.ply")]
+    assert main(argv + ["--json", "-"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["alignment"]["views"] == 12 and rep["alignment"]["scale"] == pytest.approx(1 / 0.25, rel=1e-6)
+    assert rep["mesh"]["fscore"] > 0.99 and "warnings" not in rep
+    assert main(argv) == 0
+    assert "aligned through the cameras: 12 shared views" in capsys.readouterr().out
+
+
+def test_eval_warns_when_frames_differ_and_cannot_be_aligned(result_in_sfm_frame, fewer_samples, tmp_path, capsys):
+    import argparse
+
+    import trimesh
+
+    from photorecon.commands import _align_for_eval
+
+    out, data = result_in_sfm_frame
+    gt = str(data / "gt_mesh.ply")
+    assert main(["eval", "--mesh", str(out / "mesh.ply"), "--gt", gt, "--no-align-poses", "--json", "-"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["mesh"]["fscore"] < 0.2 and "same frame" in rep["warnings"][0] and "alignment" not in rep
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(out / "mesh.ply", alone / "mesh.ply")  # no cameras beside it
+    args = argparse.Namespace(mesh=str(alone / "mesh.ply"), gt=gt, poses=None, ref=None, align_poses=None)
+    mesh, truth = trimesh.load(alone / "mesh.ply"), trimesh.load(gt)
+    moved, alignment, warning = _align_for_eval(mesh, truth, args)
+    assert moved is mesh and alignment is None and "bounding box" in warning and "same frame" in warning
+    assert _align_for_eval(truth, truth, args)[2] is None  # the same frame: no warning
+    # cameras given on the command line align it (the result's own, and the truth's)
+    args.poses, args.ref = str(out / "sparse" / "0"), str(data / "sparse" / "0")
+    moved, alignment, warning = _align_for_eval(mesh, truth, args)
+    assert alignment["views"] == 12 and warning is None
+    assert np.abs(np.asarray(moved.vertices) - np.asarray(truth.vertices)).max() < 1e-6
+    assert main(["eval", "--mesh", str(alone / "mesh.ply"), "--gt", gt, "--align-poses"]) == 2
+    assert "no cameras beside" in capsys.readouterr().err
