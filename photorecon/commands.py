@@ -122,9 +122,16 @@ def _run_eval(args):
 
     import numpy as np
 
-    from .errors import BadArgumentError
+    from .errors import BadArgumentError, OutputError
 
     report = {}
+    inputs = {Path(p).resolve() for p in (args.mesh, args.gt, args.poses, args.ref) if p}
+    written = [("--json", args.json_out if args.json_out != "-" else None)]
+    if args.error_mesh:  # the coloured mesh and its picture
+        written += [("--error-mesh", args.error_mesh), ("--error-mesh", Path(args.error_mesh).with_suffix(".png"))]
+    for flag, dst in written:
+        if dst and Path(dst).resolve() in inputs:
+            raise OutputError(f"{flag} {dst}: would replace an input of eval; choose another file")
     if args.mesh or args.gt:
         if not (args.mesh and args.gt):
             raise BadArgumentError("eval: --mesh and --gt go together")

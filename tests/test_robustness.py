@@ -109,6 +109,15 @@ def test_mvs_output_never_replaces_files_photorecon_did_not_write(ds, tmp_path, 
     assert tree_hash(photos) == before
 
 
+def test_eval_refuses_to_write_over_its_inputs(ds, capsys):
+    before = tree_hash(ds)
+    gt = str(ds / "gt_mesh.ply")
+    for extra in (["--error-mesh", gt], ["--json", gt]):
+        assert main(["eval", "--mesh", gt, "--gt", gt, *extra]) == 8
+        assert "would replace an input" in capsys.readouterr().err
+    assert tree_hash(ds) == before
+
+
 # --- 2. one run per output folder; a stage is complete only with all its outputs -----------------------------
 def test_second_run_on_a_locked_output_names_the_holder_and_exits_8(tmp_path):
     """Two runs on one output: the second stops at once, naming the process that holds the folder, and
