@@ -27,7 +27,7 @@ from pathlib import Path
 
 WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
                  "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "preview.png", "preview_mesh.ply", "report.json",
-                 "report.html", "mvs_report.json", ".stages", ".work", ".mvs_work")
+                 "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
 
 
 @dataclass(frozen=True)
