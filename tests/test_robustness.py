@@ -184,6 +184,30 @@ def test_stale_lock_of_a_dead_process_is_taken_over(tmp_path, caplog):
     assert not (out / LOCK).exists()
 
 
+def test_lock_without_flock_decides_by_process_id(tmp_path, monkeypatch):
+    """On a file system without flock the process id decides: a live one holds the folder, a dead one's lock
+    (or one without a process id) is taken over."""
+    from photorecon.io import output
+
+    monkeypatch.setattr(output, "fcntl", None)
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / output.LOCK).write_text(json.dumps({"pid": holder.pid, "host": socket.gethostname()}))
+        with pytest.raises(OutputError, match=f"process {holder.pid} on"):
+            with output.output_lock(out):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+    for stale in ({"pid": holder.pid, "host": socket.gethostname()}, {}):
+        (out / output.LOCK).write_text(json.dumps(stale))
+        with output.output_lock(out):
+            assert json.loads((out / output.LOCK).read_text())["pid"] == os.getpid()
+        assert not (out / output.LOCK).exists()
+
+
 def test_lock_is_released_on_error_and_interrupt(tmp_path):
     from photorecon.io.output import LOCK, output_folder
 

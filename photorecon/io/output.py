@@ -172,14 +172,14 @@ def _read_info(fd: int) -> dict:
 
 
 def _alive(info: dict) -> bool:
-    """Whether the process that wrote ``info`` may still run: False only for a process id that is not running
-    on this host."""
-    if info.get("host") != socket.gethostname():
-        return True
+    """Whether the process that wrote ``info`` may still run: False for a process id that is not running on
+    this host, and for a lock file without one (a run that died as it created it)."""
     try:
         pid = int(info.get("pid"))
     except (TypeError, ValueError):
         return False
+    if info.get("host") != socket.gethostname():
+        return True
     if pid == os.getpid():
         return False
     try:
