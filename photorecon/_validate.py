@@ -8,7 +8,10 @@ import numpy as np
 
 from .errors import BadArgumentError
 
-ORTHO_TOL = 1e-6
+ORTHO_TOL = 1e-6  # a rotation block this close to orthonormal is used as given
+# float32-rounded or few-digit camera files (NeRF-synthetic's transforms_*.json: ~1e-6 .. 1e-5) deviate by more;
+# up to this deviation the block is snapped to the nearest rotation, beyond it it is a scale or a shear
+SNAP_TOL = 1e-3
 
 
 def as_array(x, shape: tuple, name: str, dtype=np.float64) -> np.ndarray:
@@ -31,23 +34,35 @@ def as_points(x, name: str = "points") -> np.ndarray:
 
 
 def as_rotation(R, name: str = "rotation") -> np.ndarray:
-    """3x3 float64 rotation: orthonormal to ``ORTHO_TOL`` with determinant +1."""
+    """3x3 float64 rotation with determinant +1. Orthonormal to ``ORTHO_TOL``: returned as given; to
+    ``SNAP_TOL`` (rounding, as in float32 camera files): the nearest rotation (SVD, Frobenius norm); beyond
+    that (a scale or a shear) or with det < 0 (a reflection): ``BadArgumentError``."""
     R = as_array(R, (3, 3), name)
-    err = np.abs(R.T @ R - np.eye(3)).max()
-    if err > ORTHO_TOL:
-        raise BadArgumentError(f"{name}: expected an orthonormal rotation (R^T R = I), deviation is {err:.3g}")
     det = np.linalg.det(R)
     if det < 0:
         raise BadArgumentError(f"{name}: expected a proper rotation (det +1), got det {det:.6f} (a reflection: check the axis convention)")
-    return R
+    err = np.abs(R.T @ R - np.eye(3)).max()
+    if err <= ORTHO_TOL:
+        return R
+    if err > SNAP_TOL:
+        sv = np.linalg.svd(R, compute_uv=False)
+        raise BadArgumentError(f"{name}: expected an orthonormal rotation (R^T R = I), deviation is {err:.3g} "
+                               f"(singular values {sv[0]:.6g}, {sv[1]:.6g}, {sv[2]:.6g}: a scale or shear, more than "
+                               f"the {SNAP_TOL:g} that rounding explains)")
+    U, _, Vt = np.linalg.svd(R)
+    return U @ Vt  # det +1: R is within SNAP_TOL of orthonormal with det > 0
 
 
 def as_rigid(T, name: str = "transform") -> np.ndarray:
-    """4x4 float64 rigid transform [R t; 0 0 0 1] with a proper rotation R."""
+    """4x4 float64 rigid transform [R t; 0 0 0 1] with a proper rotation R (a rotation block within
+    ``SNAP_TOL`` of orthonormal is returned snapped to the nearest rotation, see ``as_rotation``)."""
     T = as_array(T, (4, 4), name)
     if np.abs(T[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-9:
         raise BadArgumentError(f"{name}: expected last row [0 0 0 1], got {T[3].tolist()}")
-    as_rotation(T[:3, :3], f"{name} rotation block")
+    R = as_rotation(T[:3, :3], f"{name} rotation block")
+    if not np.shares_memory(R, T):  # snapped
+        T = T.copy()
+        T[:3, :3] = R
     return T
 
 

@@ -93,7 +93,9 @@ def eval_cmd(sub):
                                    f"{200_000} area-uniform samples per mesh, seed 0. A --gt with vertices and no "
                                    "faces is a reference point cloud (DTU / ETH3D / Tanks-and-Temples style): per "
                                    "tau, accuracy = fraction of result samples within tau of a reference point, "
-                                   "completeness = fraction of reference points within tau of the result, F-score.")
+                                   "completeness = fraction of reference points within tau of the result, F-score. "
+                                   "A result with cameras beside it (a reconstruct output's sparse/0) is first moved "
+                                   "into the truth's frame through the cameras (see --align-poses).")
     p.add_argument("--mesh", help="result mesh (or point cloud, against a point-cloud --gt)")
     p.add_argument("--gt", help="ground truth: a mesh, or a point cloud (PLY with vertices and no faces)")
     p.add_argument("--tau", type=_tau_list, metavar="T[,T...]",
@@ -103,6 +105,10 @@ def eval_cmd(sub):
                    help="ignore result samples farther than MARGIN (scene units) from the GT's bounding box: "
                         "background the reference does not cover; completeness is unaffected")
     p.add_argument("--icp", action="store_true", help="refine the result onto the truth with ICP first")
+    p.add_argument("--align-poses", action=argparse.BooleanOptionalAction, default=None,
+                   help="move the result into the truth's frame with the similarity that aligns its cameras to the "
+                        "truth's (same image names; cameras from --poses/--ref, else sparse/0 or transforms.json "
+                        "beside each file); default: when both sides have cameras")
     p.add_argument("--poses", help="estimated cameras: COLMAP folder or transforms.json")
     p.add_argument("--ref", help="reference cameras: COLMAP folder or transforms.json")
     p.add_argument("--json", dest="json_out", nargs="?", const="-", help="print JSON (or write it to a file)")
@@ -116,9 +122,16 @@ def _run_eval(args):
 
     import numpy as np
 
-    from .errors import BadArgumentError
+    from .errors import BadArgumentError, OutputError
 
     report = {}
+    inputs = {Path(p).resolve() for p in (args.mesh, args.gt, args.poses, args.ref) if p}
+    written = [("--json", args.json_out if args.json_out != "-" else None)]
+    if args.error_mesh:  # the coloured mesh and its picture
+        written += [("--error-mesh", args.error_mesh), ("--error-mesh", Path(args.error_mesh).with_suffix(".png"))]
+    for flag, dst in written:
+        if dst and Path(dst).resolve() in inputs:
+            raise OutputError(f"{flag} {dst}: would replace an input of eval; choose another file")
     if args.mesh or args.gt:
         if not (args.mesh and args.gt):
             raise BadArgumentError("eval: --mesh and --gt go together")
@@ -132,6 +145,15 @@ def _run_eval(args):
             raise BadArgumentError(f"--crop-to-reference: expected a margin >= 0, got {args.crop_to_reference}")
         gt = load_reference(args.gt)
         result = load_reference(args.mesh)
+        result, alignment, warning = _align_for_eval(result, gt, args)
+        if alignment:
+            report["alignment"] = alignment
+        if warning:
+            report["warnings"] = [warning]
+            if args.json_out == "-":  # the JSON on stdout carries it; say it on stderr too
+                import logging
+
+                logging.getLogger("photorecon").warning("warning: %s", warning)
         gt_pts = np.asarray(gt.vertices) if isinstance(gt, trimesh.Trimesh) else gt
         diag = float(np.linalg.norm(gt_pts.max(0) - gt_pts.min(0)))
         taus = args.tau or [0.01 * diag, 0.005 * diag]
@@ -170,6 +192,35 @@ def _run_eval(args):
     return 0
 
 
+def _align_for_eval(result, gt, args):
+    """``eval --mesh``: (the result in the truth's frame, the alignment's facts or None, a warning or None).
+    Cameras on both sides (--poses/--ref, else beside the files) align the result unless --no-align-poses;
+    without, a result whose bounding box does not match the truth's gets a warning."""
+    from .errors import BadArgumentError
+    from .io.dataset import read_model
+    from .metrics import align_by_cameras, cameras_beside, frames_differ
+
+    if args.align_poses is not False:
+        est = read_model(args.poses).views if args.poses else cameras_beside(args.mesh)
+        ref = read_model(args.ref).views if args.ref else cameras_beside(args.gt)
+        shared = len({v.name for v in est or ()} & {v.name for v in ref or ()})
+        if est and ref and shared >= 3:
+            moved, facts = align_by_cameras(result, est, ref)
+            return moved, facts, None
+        if args.align_poses:
+            found = ("no cameras beside " + (args.mesh if not est else args.gt) if not (est and ref)
+                     else f"{shared} image names in common")
+            raise BadArgumentError(f"--align-poses: needs the cameras of both sides with at least 3 image names in "
+                                   f"common (--poses and --ref, or sparse/0 or transforms.json beside each file); "
+                                   f"found {found}")
+    why = frames_differ(result, gt)
+    if why is None:
+        return result, None, None
+    hint = ("--align-poses aligns them through their cameras" if args.align_poses is False else
+            "give the cameras of both (--poses and --ref) to align them, or --icp for a small offset")
+    return result, None, f"{why}: are they in the same frame? {hint}"
+
+
 def _print_thresholds(rows: list[dict]) -> None:
     print(f"  {'tau':>10}  {'accuracy':>9}  {'completeness':>12}  {'F-score':>8}   (fractions within tau)")
     for t in rows:
@@ -177,6 +228,12 @@ def _print_thresholds(rows: list[dict]) -> None:
 
 
 def _print_report(report: dict) -> None:
+    a = report.get("alignment")
+    if a:
+        print(f"aligned through the cameras: {a['views']} shared views, scale {a['scale']:.6g}, camera centres "
+              f"within {a['camera_rms']:.4g} RMS ({100 * a['camera_rms_rel']:.3f}% of their spread)")
+    for w in report.get("warnings", []):
+        print(f"warning: {w}")
     if report.get("mesh", {}).get("reference") == "points":
         m = report["mesh"]
         crop = (f", {m['cropped']} left out beyond {m['crop_margin']:.4g} of its bounding box"
@@ -236,7 +293,7 @@ def sfm(sub):
 def _run_sfm(args):
     from pathlib import Path
 
-    from .io.output import prepare_output
+    from .io.output import output_folder
     from .scale import ScaleConfig, scale_output
     from .sfm import SfMConfig, check_sfm_masks, run_sfm
 
@@ -244,9 +301,9 @@ def _run_sfm(args):
     scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
     if args.masks:
         check_sfm_masks(args.images, args.masks)  # before anything is written
-    out = prepare_output(args.out, args.overwrite, inputs=(args.images,) + ((args.masks,) if args.masks else ()))
-    res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
-    units = scale_output(out, args.images if Path(args.images).is_dir() else None, scale_cfg)["units"]
+    with output_folder(args.out, args.overwrite, inputs=(args.images, args.masks, cfg.intrinsics)) as out:
+        res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
+        units = scale_output(out, args.images if Path(args.images).is_dir() else None, scale_cfg)["units"]
     n = len(res.registered) + len(res.unregistered)
     print(f"sfm: {len(res.registered)} of {n} images registered, {len(res.model.points)} sparse points -> "
           f"{out}/sparse/0, {out}/transforms.json (units: {units})"
@@ -319,10 +376,33 @@ def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
     """Open the dataset, run ``run(ds, *extra, out, cfg, executor)`` on the chosen cluster (or in process)."""
     from .distributed import ClusterConfig, executor
     from .io.dataset import Dataset
+    from .io.output import output_lock
 
     ds = Dataset.open(args.dataset, masks_dir=masks)
-    with executor(config_from_args(ClusterConfig, args)) as ex:
-        return ds, run(ds, *extra, args.out, config_from_args(cfg_type, args), ex)
+    out, lock_folder = _dataset_output(ds, args.out, "depth", lambda v: (f"{v.name}.npy", f"{v.name}.conf.npy",
+                                                                          f"{v.name}.normal.npy", f"{v.name}.png"))
+    with output_lock(lock_folder), executor(config_from_args(ClusterConfig, args)) as ex:
+        return ds, run(ds, *extra, out, config_from_args(cfg_type, args), ex)
+
+
+def _dataset_output(ds, out, default: str, names):
+    """A command that writes into a dataset (DATASET/``default``) or into ``out`` (-o): the output folder and
+    the folder to lock (the dataset, when the output lies in it). Refuses (``OutputError``, before anything is
+    written) an output that is or holds the dataset, lies in or holds its images, masks or cameras, or is a
+    folder photorecon did not write holding a file it would replace (``names(view)``: the files per view)."""
+    from pathlib import Path
+
+    from .io.output import check_apart, check_foreign_files
+
+    root = Path(ds.root)
+    out = Path(out) if out else root / default
+    inputs = {Path(ds.image_path(v)).parent for v in ds.views} | {root, root / "sparse", root / "transforms.json"}
+    if ds.masks_dir is not None:
+        inputs.add(Path(ds.masks_dir))
+    check_apart(out, tuple(sorted(inputs)), may_hold=(root,))
+    check_foreign_files(out, [n for v in ds.views for n in names(v)])
+    inside = out.resolve().is_relative_to(root.resolve())
+    return out, root if inside else out
 
 
 def _run_mvs(args):
@@ -518,10 +598,25 @@ def _run_texture(args):
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     check_config(cfg)
+    from .io.dataset import Dataset
+    from .io.output import output_lock
+
+    ds = Dataset.open(args.dataset)
     dest = Path(args.out) if args.out else None
     if dest is not None and dest.resolve() in (Path(args.dataset).resolve(), *Path(args.dataset).resolve().parents):
         raise OutputError(f"-o {dest}: would replace the input folder; choose a new folder")
-    info = texture_output(args.dataset, cfg, args.mesh, dest)
+    target = dest or Path(args.dataset) / "textured"
+    # the folder is replaced as a whole: refuse one holding files photorecon did not write
+    _, lock_folder = _dataset_output(ds, target, "textured",
+                                     lambda v: [p.name for p in target.iterdir()] if target.is_dir() else [])
+    if args.mesh:
+        from .io.output import check_apart
+
+        check_apart(target, (args.mesh,))
+    # the textured folder is replaced as a whole: locked from beside it when it lies outside the dataset
+    lock_file = None if lock_folder != target else target.parent / f".{target.name}.photorecon.lock"
+    with output_lock(lock_folder, lock_file):
+        info = texture_output(args.dataset, cfg, args.mesh, dest)
     print(f"texture: {info['faces']} faces, {info['charts']} charts from {info['views_used']} views, "
           f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "
           "texture.png), mesh.glb, preview.png")

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ._validate import as_array, as_rigid, as_rotation
+from ._validate import SNAP_TOL, as_array, as_rigid, as_rotation
 from .cameras import COLMAP_MODELS, Intrinsics, invert_rigid, rigid
 from .errors import BadArgumentError
 
@@ -95,10 +95,11 @@ def quat_from_rotation(R) -> np.ndarray:
 
 
 def rotation_from_quat(qvec) -> np.ndarray:
-    """Quaternion (w, x, y, z) -> 3x3 rotation. The quaternion must have unit norm (to 1e-6)."""
+    """Quaternion (w, x, y, z) -> 3x3 rotation. The quaternion must have unit norm to ``SNAP_TOL`` (rounded
+    camera files); it is normalised."""
     q = as_array(qvec, (4,), "qvec (w, x, y, z)")
     n = np.linalg.norm(q)
-    if abs(n - 1) > 1e-6:
+    if abs(n - 1) > SNAP_TOL:
         raise BadArgumentError(f"qvec (w, x, y, z): expected a unit quaternion, got norm {n:.6g}")
     return Rotation.from_quat(q / n, scalar_first=True).as_matrix()
 

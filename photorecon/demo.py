@@ -30,15 +30,24 @@ class DemoConfig:
     height: int = field(default=384, metadata={"help": "image height"})
 
 
+# what the demos write in their folder (--overwrite never replaces a file of these names photorecon did not write)
+DEMO_NAMES = ("scene", "reconstruction", "demo.json", "tsdf.ply", "watertight.ply", "side_by_side.png")
+
+
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
-    from .io.output import prepare_output
+    from .io.output import output_folder
+
+    cfg = cfg or DemoConfig()
+    with output_folder(out, overwrite, writes=DEMO_NAMES) as out:
+        return _run_demo(out, cfg)
+
+
+def _run_demo(out: Path, cfg: DemoConfig) -> dict:
     from .metrics import evaluate_reconstruction
     from .pipeline import StageConfigs, reconstruct
     from .report import write_html_report
     from .synthetic import SynthConfig, synthesize
 
-    cfg = cfg or DemoConfig()
-    out = prepare_output(out, overwrite)
     t0 = time.perf_counter()
     data = out / "scene"
     data_layout = Layout(data)
@@ -87,15 +96,20 @@ BUNNY_METHODS = (("article", "article: per-view grids concatenated"), ("tsdf", "
 def run_bunny_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
     """The article's experiment (see the module docstring). Writes OUT/scene (the rendered dataset),
     OUT/tsdf.ply, OUT/watertight.ply, OUT/side_by_side.png and OUT/demo.json; returns the summary."""
+    from .io.output import output_folder
+
+    cfg = cfg or DemoConfig(scene="bunny")
+    with output_folder(out, overwrite, writes=DEMO_NAMES) as out:
+        return _run_bunny_demo(out, cfg)
+
+
+def _run_bunny_demo(out: Path, cfg: DemoConfig) -> dict:
     from .fusion import FusionConfig, fuse, legacy_article_fuse, load_frames, observed_points, surface_report
     from .io.dataset import Dataset
-    from .io.output import prepare_output
     from .mesh import clean, export, load_mesh
     from .metrics import doubled_shell_fraction, mesh_metrics, seen_split_metrics
     from .synthetic import SynthConfig, synthesize
 
-    cfg = cfg or DemoConfig(scene="bunny")
-    out = prepare_output(out, overwrite)
     t0 = time.perf_counter()
     data = out / "scene"
     # the article's rig: one ring of cameras around the bunny (y up), 20 degrees above its middle

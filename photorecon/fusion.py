@@ -1217,7 +1217,7 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     ``distributed.ClusterConfig`` (TSDF then in chunks, one task each; pieces under OUT/.work). Returns the mesh path."""
 
     from .io.dataset import Dataset
-    from .io.output import prepare_output
+    from .io.output import output_folder
     from .layout import Layout
     from .mesh import CleanConfig
     from .preview import render_preview
@@ -1225,16 +1225,16 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     cfg = cfg or FusionConfig()
     ds = Dataset.open(root, depth_dir, masks_dir)
     frames = load_frames(ds, cfg)
-    out = prepare_output(out, overwrite, inputs=(root,) + ((masks_dir,) if masks_dir else ()))
     from .distributed import executor
 
-    layout = Layout(out)
-    cameras = [f.view for f in frames]
-    with executor(cluster) as ex:
-        mesh, _ = fuse_to_files(frames, cfg, clean_cfg or CleanConfig(), layout, formats, cameras,
-                                ds.model.points, ex, ds, layout.work)
-    render_preview(mesh, layout.preview, cameras=cameras)
-    return layout.mesh("ply")
+    with output_folder(out, overwrite, inputs=(root, depth_dir, masks_dir)) as out:
+        layout = Layout(out)
+        cameras = [f.view for f in frames]
+        with executor(cluster) as ex:
+            mesh, _ = fuse_to_files(frames, cfg, clean_cfg or CleanConfig(), layout, formats, cameras,
+                                    ds.model.points, ex, ds, layout.work)
+        render_preview(mesh, layout.preview, cameras=cameras)
+        return layout.mesh("ply")
 
 
 def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout, formats: tuple[str, ...],

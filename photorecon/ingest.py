@@ -14,10 +14,13 @@ import numpy as np
 from .cameras import Intrinsics
 from .errors import BadArgumentError, InputDataError, NoImagesError
 from .io.atomic import atomic_path
+from .io.images import image_write_failed
 
 log = logging.getLogger("photorecon")
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+# formats COLMAP's image reader cannot decode (pycolmap 4.x): ingested as PNG copies
+COLMAP_UNREADABLE = (".webp",)
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 
 
@@ -35,6 +38,7 @@ class IngestedImage:
 class Ingest:
     images: list[IngestedImage]
     skipped: list[str] = field(default_factory=list)
+    renamed: dict[str, str] = field(default_factory=dict)  # working name -> photo's name (converted to PNG)
 
 
 def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
@@ -74,44 +78,80 @@ def _exif(path: Path) -> tuple[int, float | None]:
 
 
 def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> Ingest:
-    """Decode every image of ``folder``; copy the readable ones to ``work`` (EXIF orientation applied).
+    """Decode every image of ``folder``; copy the readable ones to ``work`` (EXIF orientation applied). A
+    format COLMAP cannot read (``COLMAP_UNREADABLE``: WebP) becomes a PNG copy named NAME.png (NAME.EXT.png when
+    another photo is named NAME.png); ``Ingest.renamed`` maps such working names to the photos' names.
 
-    Unreadable and non-image files are skipped with one warning that lists them. Raises ``NoImagesError``
+    Truncated or damaged images (``io.images.damaged_image``) are skipped with one warning that names them;
+    unreadable and non-image files with one more. Raises ``NoImagesError``
     when fewer than ``min_images`` readable images remain.
     """
+    from .io.images import damaged_image
+
     folder, work = Path(folder), Path(work)
     paths, others = list_images(folder)
     work.mkdir(parents=True, exist_ok=True)
-    out, bad = [], []
+    out, bad, truncated = [], [], []
     names = set()
+    all_names = {p.name.lower() for p in paths + others}
+    renamed: dict[str, str] = {}  # working name -> the photo's name, for photos converted to PNG
     for p in paths:
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)  # OpenCV applies EXIF orientation
+        # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
+        why = damaged_image(p) if p.suffix.lower() in (".jpg", ".jpeg") else None
+        img = None if why else cv2.imread(str(p), cv2.IMREAD_COLOR)  # OpenCV applies EXIF orientation
         if img is None or img.size == 0:
-            bad.append(p.name)
+            why = why or damaged_image(p)
+            (truncated if why else bad).append(p.name)
             continue
         orientation, focal_frac = _exif(p)
+        if p.name.lower() in names:
+            raise InputDataError(f"{folder}: two images named {p.name!r} differing only in letter case")
+        names.add(p.name.lower())
         name = p.name
-        if name.lower() in names:
-            raise InputDataError(f"{folder}: two images named {name!r} differing only in letter case")
-        names.add(name.lower())
+        if p.suffix.lower() in COLMAP_UNREADABLE:  # a PNG copy, named NAME.png (NAME.EXT.png if that is taken)
+            name = f"{p.stem}.png" if f"{p.stem}.png".lower() not in all_names else f"{p.name}.png"
+            all_names.add(name.lower())
+            renamed[name] = p.name
         dst = work / name
+        H, W = img.shape[:2]
         if not dst.exists():
             with atomic_path(dst) as tmp:
-                if orientation in (0, 1):
+                if name != p.name:
+                    W, H = _png_copy(p, tmp)
+                elif orientation in (0, 1):
                     shutil.copyfile(p, tmp)  # byte copy keeps EXIF for COLMAP
                 elif not cv2.imwrite(str(tmp), img):
-                    raise InputDataError(f"{p}: could not write the oriented copy")
-        H, W = img.shape[:2]
+                    image_write_failed(dst, img.nbytes)
         out.append(IngestedImage(name, p, W, H, focal_frac * max(W, H) if focal_frac else None))
-    skipped = bad + [p.name for p in others]
-    if skipped:
-        log.warning("skipped %d file(s) that are not readable images: %s", len(skipped),
-                    ", ".join(skipped[:20]) + (" ..." if len(skipped) > 20 else ""))
+    if truncated:
+        log.warning("skipped %d truncated or damaged image file(s) (an incomplete copy or download?): %s",
+                    len(truncated), ", ".join(truncated[:20]) + (" ..." if len(truncated) > 20 else ""))
+    skipped = truncated + bad + [p.name for p in others]
+    if len(skipped) > len(truncated):
+        rest = skipped[len(truncated):]
+        log.warning("skipped %d file(s) that are not readable images: %s", len(rest),
+                    ", ".join(rest[:20]) + (" ..." if len(rest) > 20 else ""))
     if len(out) < min_images:
         found = f"{len(out)} readable image(s)" if out else "no readable image"
         raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp); "
                             f"at least {min_images} needed")
-    return Ingest(out, skipped)
+    return Ingest(out, skipped, renamed)
+
+
+def _png_copy(src: Path, dst: Path) -> tuple[int, int]:
+    """``src`` as a PNG at ``dst``, EXIF orientation applied, alpha kept (a mask for SfM and depth); returns
+    its (width, height)."""
+    from PIL import Image, ImageOps
+
+    try:
+        with Image.open(src) as im:
+            im = ImageOps.exif_transpose(im)
+            if im.mode not in ("1", "L", "LA", "I;16", "RGB", "RGBA"):
+                im = im.convert("RGBA" if "A" in im.getbands() else "RGB")
+            im.save(dst, "PNG", compress_level=1)
+            return im.size
+    except OSError as exc:
+        raise InputDataError(f"{src}: could not convert it to PNG for SfM ({exc})") from None
 
 
 def read_K(path: str | Path, width: int, height: int) -> Intrinsics:
@@ -148,7 +188,8 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
                 name = f"frame_{k:05d}.png"
                 if not (work / name).exists():
                     with atomic_path(work / name) as tmp:
-                        cv2.imwrite(str(tmp), frame)
+                        if not cv2.imwrite(str(tmp), frame):
+                            image_write_failed(work / name, frame.nbytes)
                 H, W = frame.shape[:2]
                 out.append(IngestedImage(name, video, W, H))
             k += 1

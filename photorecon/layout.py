@@ -16,12 +16,18 @@ one layout; ``reconstruct`` adds the mesh, its previews and reports, and its wor
     ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
     ROOT/.stages/               the pipeline's stage markers
 
-Paths only: a ``Layout`` creates, reads and checks nothing.
+Paths only: a ``Layout`` creates, reads and checks nothing. ``WRITTEN_NAMES``: every name photorecon writes,
+replaces or deletes directly under a dataset or output folder (what ``--overwrite`` must not find in a folder
+photorecon did not write).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+
+WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
+                 "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "preview.png", "preview_mesh.ply", "report.json",
+                 "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
 
 
 @dataclass(frozen=True)

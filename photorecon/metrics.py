@@ -463,3 +463,57 @@ def evaluate_reconstruction(rec_dir, data_dir, n_samples: int = 100_000) -> tupl
     mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
     gt = trimesh.load(ref_layout.gt_mesh, process=False)
     return poses, mesh_metrics(mesh, gt, n_samples=n_samples)
+
+
+def cameras_beside(path: str | Path) -> list | None:
+    """The cameras of the result or dataset folder holding the file ``path`` (``sparse/0`` or
+    ``transforms.json`` next to a reconstruct output's mesh.ply or a dataset's gt_mesh.ply), or None."""
+    from .io.dataset import read_model
+    from .layout import Layout
+
+    layout = Layout(Path(path).resolve().parent)
+    for src in (layout.sparse, layout.transforms):
+        if src.exists():
+            try:
+                return read_model(src).views
+            except (InputDataError, BadArgumentError):
+                return None
+    return None
+
+
+def align_by_cameras(geometry, estimate: list, reference: list):
+    """``geometry`` (a ``Trimesh`` or (N, 3) points in the estimate's world) moved into the reference's world
+    with the Sim3 that aligns the cameras of the same name (``align_cameras``). Returns (moved geometry, facts:
+    shared views, scale, camera-centre RMS after alignment and relative to the reference cameras' spread)."""
+    s, R, t = align_cameras(estimate, reference)
+    pairs = _pairs(estimate, reference)
+    ce = np.array([e.center for e, _ in pairs])
+    cr = np.array([r.center for _, r in pairs])
+    rms = float(np.sqrt(((s * ce @ R.T + t - cr) ** 2).sum(1).mean()))
+    spread = float(np.sqrt(((cr - cr.mean(0)) ** 2).sum(1).mean()))
+    if isinstance(geometry, trimesh.Trimesh):
+        moved = geometry.copy()
+        moved.vertices = s * np.asarray(geometry.vertices) @ R.T + t
+    else:
+        moved = s * np.asarray(geometry, float) @ R.T + t
+    return moved, {"method": "cameras", "views": len(pairs), "scale": float(s), "rotation": R.tolist(),
+                   "translation": t.tolist(), "camera_rms": rms, "camera_rms_rel": rms / spread if spread else 0.0}
+
+
+def frames_differ(result, reference) -> str | None:
+    """A reason to think ``result`` and ``reference`` (meshes or points) are in different frames, from their
+    bounding boxes (centres apart by more than half the reference's diagonal, or sizes differing more than 3x),
+    or None."""
+    def box(g):
+        p = np.asarray(g.vertices if isinstance(g, trimesh.Trimesh) else g, float)
+        return p.min(0), p.max(0)
+
+    (lr, hr), (lg, hg) = box(result), box(reference)
+    dr, dg = float(np.linalg.norm(hr - lr)), float(np.linalg.norm(hg - lg))
+    gap = float(np.linalg.norm((lr + hr) / 2 - (lg + hg) / 2))
+    if dg <= 0:
+        return None
+    if gap > 0.5 * dg or not 1 / 3 <= dr / dg <= 3:
+        return (f"the result's bounding box (diagonal {dr:.4g}, centre {gap:.4g} from the truth's) does not match "
+                f"the truth's (diagonal {dg:.4g})")
+    return None

@@ -106,12 +106,12 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
     fusion stages use it as a mask."""
     from .cameras import View
     from .io.colmap_text import SparseModel
-    from .io.images import mask_file, read_alpha, read_image, read_mask, write_image
+    from .io.images import damaged_image, mask_file, read_alpha, read_image, read_mask, write_image
 
     layout = Layout(out)
     img_out, mask_out = layout.images, layout.masks
     img_out.mkdir(parents=True, exist_ok=True)
-    views = []
+    views, damaged = [], []
     for v in model.views:
         name = v.image_file or v.name
         src = images_dir / name
@@ -120,7 +120,20 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
             if not cands:
                 raise InputDataError(f"view {v.name}: image {name} not found in {images_dir}")
             src = cands[0]
-        img = read_image(src)
+        # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
+        why = damaged_image(src) if src.suffix.lower() in (".jpg", ".jpeg") else None
+        img = None
+        if not why:
+            try:
+                img = read_image(src)
+            except InputDataError:
+                why = damaged_image(src)
+                if not why:
+                    raise
+        if why:
+            log.warning("view %s: image %s is %s; view skipped", v.name, src, why)
+            damaged.append(v.name)
+            continue
         if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
             raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
                                  f"{v.intrinsics.width}x{v.intrinsics.height}")
@@ -147,23 +160,19 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
         else:
             mask_path.unlink(missing_ok=True)  # a stale mask from an earlier run with other images
         views.append(View(v.name, intr, v.cam_from_world, image_file=dst_name))
+    if damaged and len(views) < 2:
+        raise InputDataError(f"{images_dir}: {len(views)} usable image(s) for the given cameras"
+                             + (f" ({len(damaged)} truncated or damaged: {', '.join(damaged[:5])})" if damaged else "")
+                             + "; at least 2 needed")
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 
 
 def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
                 overwrite: bool = False) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
-    from .depth.mvs import run_mvs
-    from .fusion import fuse_to_files, load_frames
-    from .io.colmap_text import write_colmap_text
-    from .io.dataset import Dataset, read_model
-    from .io.nerf import write_transforms
-    from .io.output import prepare_output
+    from .io.output import output_folder
     from .ingest import VIDEO_SUFFIXES
-    from .mesh import export, load_mesh, parse_formats
-    from .preview import render_preview
-    from .scale import given_units, scale_output
-    from .sfm import run_sfm
+    from .mesh import parse_formats
 
     cfgs = cfgs or StageConfigs()
     run = cfgs.run
@@ -189,8 +198,26 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         from .sfm import check_sfm_masks
 
         check_sfm_masks(images, masks)
-    out = prepare_output(out, overwrite, inputs=(images,) + ((run.depth,) if run.depth != "mvs" else ())
-                         + ((masks,) if masks else ()))
+    inputs = (images, masks, run.poses, run.depth_model, cfgs.sfm.intrinsics,
+              run.depth if run.depth != "mvs" else None)
+    with output_folder(out, overwrite, inputs=inputs) as out:
+        return _reconstruct(images, out, cfgs, force, is_video, formats, masks)
+
+
+def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_video: bool, formats: tuple,
+                 masks: Path | None) -> ReconstructResult:
+    """``reconstruct`` in its checked, locked output folder."""
+    from .depth.mvs import run_mvs
+    from .fusion import fuse_to_files, load_frames
+    from .io.colmap_text import write_colmap_text
+    from .io.dataset import Dataset, read_model
+    from .io.nerf import write_transforms
+    from .mesh import export, load_mesh
+    from .preview import render_preview
+    from .scale import given_units, scale_output
+    from .sfm import run_sfm
+
+    run = cfgs.run
     layout = Layout(out)
     stages = Stages(layout.stages, force)
     warnings: list[str] = []
@@ -228,13 +255,15 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         stages.run("poses", {"images": fingerprint(images), "poses": run.poses and fingerprint(run.poses),
                              "sfm": sfm_inputs, "masks": masks and fingerprint(masks),
                              "scale": asdict(cfgs.scale)},
-                   poses, outputs=[layout.images, layout.sparse, layout.transforms, layout.masks])
+                   poses, outputs=[layout.images, layout.sparse, layout.transforms, layout.masks],
+                   optional=[layout.masks])
         ds = Dataset.open(out)
 
         # 2. depth: OUT/depth
         source = "mono" if run.depth_model else "mvs" if run.depth == "mvs" else "folder"
 
         def depth() -> dict:
+            written = None  # the views whose depth maps the stage reports
             with atomic_dir(layout.depth) as tmp_depth:
                 if source == "mono":
                     from .depth.mono import MonoConfig, run_mono
@@ -246,11 +275,13 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"]}
+                    written = sorted(rep["per_view"])
                 else:
                     # depth maps in the given cameras' units scale with them (--marker-size, GPS)
                     factor = stages.info["poses"].get("scale", {}).get("factor", 1.0) if run.poses else 1.0
                     n = _copy_depth(Path(run.depth), ds, tmp_depth, factor)
                     info = {"source": str(run.depth), "views": n}
+            _check_depth_written(layout, info["views"], written)
             log.info("depth: %d depth maps (%s)", info["views"], info["source"])
             return info
 
@@ -320,6 +351,19 @@ class _WarningCollector(logging.Handler):
 
     def emit(self, record):
         self.sink.append(record.getMessage())
+
+
+def _check_depth_written(layout: Layout, count: int, names: list[str] | None = None) -> None:
+    """The depth stage's outputs, checked before it is marked complete: ``count`` depth maps in OUT/depth (and
+    each of ``names`` among them). Raises ``OutputError`` naming what is missing."""
+    from .errors import OutputError
+
+    have = {p.name[:-4] for p in layout.depth.glob("*.npy") if not p.name.endswith((".conf.npy", ".normal.npy"))}
+    missing = [n for n in names or () if n not in have]
+    if missing or len(have) < count or not have:
+        what = f"{layout.depth_map(missing[0])}" if missing else f"{count} depth maps ({len(have)} found)"
+        raise OutputError(f"depth stage: {what} missing in {layout.depth} after the stage wrote it; was the output "
+                          "folder changed by another program meanwhile? Run again to redo the stage")
 
 
 def _copy_depth(src: Path, ds, dst: Path, factor: float = 1.0) -> int:

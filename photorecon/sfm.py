@@ -28,6 +28,7 @@ from .errors import BadArgumentError, InputDataError, SfMError
 from .io.atomic import atomic_path, atomic_write_json
 from .io.colmap import read_colmap_binary, sparse_from_pycolmap
 from .io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
+from .io.space import check_space
 from .layout import Layout
 from .stages import Stages, atomic_dir, fingerprint, replace_dir
 
@@ -144,15 +145,18 @@ def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
     return match_masks(masks, {p.name: image_size(p) for p in paths})
 
 
-def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path) -> int:
+def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path,
+                       photo_names: dict[str, str] | None = None) -> int:
     """COLMAP's mask layout in ``dst``: ``NAME.EXT.png`` (uint8, 0 = no features there, 255 = use) for each of
     ``images`` ((name, width, height) in ``images_dir``) that has a mask in the user's folder ``masks``
-    (NAME.EXT.png or NAME.png), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
+    (NAME.EXT.png or NAME.png of the photo's name: ``photo_names`` maps a working name to it where they
+    differ), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
     from .io.images import mask_file, read_alpha, read_mask, write_image
 
+    photo_names = photo_names or {}
     n = 0
     for name, w, h in images:
-        p = mask_file(masks, name) if masks else None
+        p = mask_file(masks, photo_names.get(name, name)) if masks else None
         if p is not None:
             m = read_mask(p, (w, h), f"image {name}")
         else:
@@ -171,6 +175,7 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
     """SIFT features of the images in ``cameras`` (see ``camera_groups``) into a new COLMAP database; none
     where a mask in ``mask_dir`` (COLMAP's layout, ``write_colmap_masks``) is 0."""
     pycolmap = _pycolmap()
+    check_space(database, features_bytes(images_dir, [n for cam in cameras for n in cam["images"]], cfg))
     with atomic_path(database) as tmp:
         for cam in cameras:
             reader = pycolmap.ImageReaderOptions()
@@ -229,6 +234,7 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig) -> Path
     COLMAP's loop detection needs a vocabulary tree, a download) or spatial (nearest by the GPS position priors
     COLMAP read from EXIF)."""
     pycolmap = _pycolmap()
+    check_space(database, 2 * features.stat().st_size + MB)  # a copy of the features, then the matches
     with atomic_path(database) as tmp:
         shutil.copyfile(features, tmp)
         mopt = pycolmap.FeatureMatchingOptions()
@@ -285,6 +291,7 @@ def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed
     """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``."""
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(cfg.seed)
+    check_space(model_dir, database.stat().st_size // 2 + MB)
     with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp:
         if mapper == "global":
             gopt = pycolmap.GlobalPipelineOptions()
@@ -345,6 +352,7 @@ def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mas
     stays unscaled, so scaling never compounds and never invalidates this stage."""
     pycolmap = _pycolmap()
     layout = Layout(out)
+    check_space(layout.images, 2 * sum(f.stat().st_size for f in images_dir.iterdir()) + MB)
     with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
         pycolmap.undistort_images(und, str(model_dir), str(images_dir))
         model = sparse_from_pycolmap(pycolmap.Reconstruction(f"{und}/sparse"))
@@ -377,13 +385,49 @@ def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
     """Oriented copies of the photos (or every k-th video frame) in ``work_images``; what SfM needs of them."""
     from .ingest import VIDEO_SUFFIXES, ingest_folder, video_frames
 
+    photos = [src] if src.is_file() else [p for p in src.iterdir() if p.is_file()]
+    check_space(work_images, 2 * sum(p.stat().st_size for p in photos) + MB)  # WebP becomes a larger PNG
     with atomic_dir(work_images) as tmp:
         if src.is_file() and src.suffix.lower() in VIDEO_SUFFIXES:
             ing = video_frames(src, tmp, video_every)
         else:
             ing = ingest_folder(src, tmp, min_images=1)
     return {"images": [[im.name, im.width, im.height, im.focal_prior_px] for im in ing.images],
-            "skipped": ing.skipped}
+            "skipped": ing.skipped, "renamed": ing.renamed}
+
+
+MB = 1 << 20
+
+
+def features_bytes(images_dir: Path, names: list[str], cfg: SfMConfig) -> int:
+    """About the most a COLMAP feature database of these images takes: per image
+    min(max_features, pixels at max_image_size / 25) features of 160 bytes (128-byte descriptor, 6-float
+    keypoint, SQLite's overhead; measured 156 on 320x240 renders, which gave one feature per 40-80 pixels)."""
+    from .io.images import image_size
+
+    total = MB
+    for n in names:
+        try:
+            w, h = image_size(images_dir / n)
+        except Exception:  # unreadable here: the extraction will say so
+            w, h = cfg.max_image_size, cfg.max_image_size
+        s = min(1.0, cfg.max_image_size / max(w, h, 1))
+        total += int(min(cfg.max_features, w * h * s * s / 25) * 160)
+    return total
+
+
+def _remove_leftovers(work: Path, out: Path) -> None:
+    """Temporary files of a run that died in COLMAP's native code (a full disk aborts SQLite's writer):
+    the half-written databases and their journals, the mapper's and the undistorter's folders."""
+    leftovers = [*work.glob(".features.*.db*"), *work.glob(".database.*.db*"), *work.glob(".mapper*"),
+                 *out.glob(".undistort*")]
+    for p in leftovers:
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+    if leftovers:
+        log.debug("removed %d temporary file(s) of an earlier run", len(leftovers))
 
 
 def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = None, force: bool = False,
@@ -406,12 +450,15 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         check_sfm_masks(src, masks)
     layout = Layout(out)
     work = layout.colmap  # COLMAP's working files, laid out as sfm's stages want them
+    _remove_leftovers(work, out)
     stages = Stages(work / ".stages", force)
 
     ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None}
     ing = stages.run("ingest", ingest_params, lambda: _ingest(src, work / "images", cfg.video_every),
                      outputs=[work / "images"])
-    images = [IngestedImage(name, src if src.is_file() else src / name, w, h, f) for name, w, h, f in ing["images"]]
+    renamed = ing.get("renamed", {})  # working name -> photo name, for photos ingested as PNG copies (WebP)
+    images = [IngestedImage(name, src if src.is_file() else src / renamed.get(name, name), w, h, f)
+              for name, w, h, f in ing["images"]]
     if len(images) < 2:
         raise SfMError(f"{images_dir}: only one readable image ({images[0].name}); SfM needs at least 2 "
                        "overlapping photos")
@@ -424,12 +471,13 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     def extraction() -> dict:
         with atomic_dir(work_masks) as tmp:
-            n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp)
+            n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp,
+                                   renamed)
         extract(work / "images", features, cameras, cfg, work_masks if n else None)
         return {"masks": n}
 
     ext = stages.run("extraction", {"cameras": cameras, "sift": sift, "masks": masks and fingerprint(masks)},
-                     extraction, outputs=[features, work_masks])
+                     extraction, outputs=[features, work_masks], optional=[work_masks])
 
     with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
     matching = choose_matching(cfg, len(names), with_gps)
@@ -461,7 +509,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     undistorted = work / "undistorted"
     stages.run("undistortion", {}, lambda: undistort(model_dir, work / "images", out, undistorted,
                                                      work_masks if ext.get("masks") else None),
-               outputs=[layout.images, undistorted, layout.masks])
+               outputs=[layout.images, undistorted, layout.masks], optional=[layout.masks])
     model = publish(undistorted, out)
     secs = {name: s["seconds"] for name, s in stages.stats.items()}
     atomic_write_json(work / "sfm_report.json", {"registered": reg_names, "unregistered": unreg,

@@ -21,7 +21,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable
 
+from .errors import OutputError
 from .io.atomic import atomic_write_json
+from .io.space import is_no_space, no_space_error
 from .resources import measure
 
 log = logging.getLogger("photorecon")
@@ -64,15 +66,18 @@ def replace_dir(src: str | Path, dst: str | Path) -> Path:
 @contextmanager
 def atomic_dir(path: str | Path):
     """Yield an empty temporary folder next to ``path``; on success it replaces ``path`` (an interrupted
-    write leaves ``path`` as it was and removes the temporary folder)."""
+    write leaves ``path`` as it was and removes the temporary folder; a full disk raises ``OutputError``
+    naming ``path`` and its device)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
         yield tmp
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if is_no_space(exc):
+            raise no_space_error(path) from None
         raise
     replace_dir(tmp, path)
 
@@ -97,14 +102,19 @@ class Stages:
     def cached(self) -> list[str]:
         return [name for name, s in self.stats.items() if s.get("cached")]
 
-    def run(self, name: str, params, fn: Callable[[], dict | None], outputs: Iterable[str | Path] = ()) -> dict:
+    def run(self, name: str, params, fn: Callable[[], dict | None], outputs: Iterable[str | Path] = (),
+            optional: Iterable[str | Path] = ()) -> dict:
         """Reuse stage ``name`` or run ``fn()``, which writes ``outputs`` (files or folders); returns its info.
 
         ``params``: JSON-able settings and input fingerprints; a change runs the stage (and all later ones).
-        ``fn`` returns a dict of facts for the report (anything else counts as ``{}``).
+        ``fn`` returns a dict of facts for the report (anything else counts as ``{}``). The stage is marked
+        complete only when each of ``outputs`` exists after ``fn`` (a folder with at least one file), except
+        those also in ``optional`` (which may be missing or empty); else ``OutputError`` naming the first
+        missing one, and no marker.
         """
         marker = self.dir / f"{name}.json"
         outputs = list(outputs)
+        optional = {Path(p) for p in optional}
         key = params_key({"params": params, "after": self._previous})
         old = _read_marker(marker)
         if not self.force and old.get("key") == key and old.get("outputs") == fingerprint(*outputs, times=False):
@@ -117,12 +127,23 @@ class Stages:
         with measure(self.stats, name):
             result = fn()
         self.info[name] = result if isinstance(result, dict) else {}
+        for p in map(Path, outputs):
+            if p not in optional and not _present(p):
+                raise OutputError(f"stage {name}: its output {p} is missing or empty after it ran; was the output "
+                                  "folder changed by another program meanwhile? Run again to redo the stage")
         self._previous = uuid.uuid4().hex[:16]
         params = json.loads(json.dumps(params, default=str))  # as hashed, for a reader of the marker
         atomic_write_json(marker, {"key": key, "id": self._previous, "params": params, **self.stats[name],
                                    "outputs": fingerprint(*outputs, times=False), "info": self.info[name]})
         log.debug("%s: %.1f s, peak %.0f MB", name, self.stats[name]["seconds"], self.stats[name]["peak_mb"])
         return self.info[name]
+
+
+def _present(p: Path) -> bool:
+    """A file, or a folder holding at least one file that is not hidden."""
+    if p.is_file():
+        return True
+    return p.is_dir() and any(not f.name.startswith(".") for f in p.iterdir())
 
 
 def _read_marker(path: Path) -> dict:

@@ -30,7 +30,7 @@ from .io.atomic import atomic_write_json
 from .io.colmap_text import SparseModel, write_colmap_text
 from .io.images import write_depth, write_image
 from .io.nerf import write_transforms
-from .io.output import prepare_output
+from .io.output import output_folder
 from .layout import Layout
 from .mesh import export, load_mesh
 from .progress import bar
@@ -190,30 +190,30 @@ def synthesize(cfg: SynthConfig, out: str | Path, overwrite: bool = False) -> Sy
     mesh, center, scale = normalize_mesh(src)
     views = make_views(cfg)
     renderer = Renderer(mesh, cfg.seed, cfg.background)
-    out = prepare_output(out, overwrite, inputs=(cfg.mesh,) if cfg.mesh else ())
-    layout = Layout(out)
-    for d in (layout.images, layout.depth, layout.masks, layout.sparse):
-        d.mkdir(parents=True, exist_ok=True)
-    t_render = 0.0
-    for view in bar(views, desc="render"):
-        t0 = time.perf_counter()
-        r = renderer.render(view)
-        t_render += time.perf_counter() - t0
-        write_image(layout.image(f"{view.name}.png"), r.rgb)
-        write_depth(layout.depth, view.name, r.depth)
-        write_image(layout.mask(view.name), (r.mask * 255).astype(np.uint8))
-    sparse = sparse_model_from_surface(renderer, views, cfg.points, cfg.seed)
-    write_colmap_text(sparse, layout.sparse)
-    write_transforms(views, layout.transforms, world="none", depth_dir=layout.depth.name, mask_dir=layout.masks.name)
-    export(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), layout.gt_mesh)
-    info = {"source": source, "normalization": {"center": center.tolist(), "scale": scale,
-                                                "formula": "world = (input - center) / scale"},
-            "config": asdict(cfg), "appearance": renderer.appearance.kind,
-            "bbox_diagonal": float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0])),
-            "render_seconds_per_view": t_render / len(views)}
-    atomic_write_json(layout.scene, info)
-    log.info("synth: %d views of %s (%s texture) written to %s", len(views), source, renderer.appearance.kind, out)
-    return SynthResult(out, views, mesh, t_render / len(views))
+    with output_folder(out, overwrite, inputs=(cfg.mesh,) if cfg.mesh else ()) as out:
+        layout = Layout(out)
+        for d in (layout.images, layout.depth, layout.masks, layout.sparse):
+            d.mkdir(parents=True, exist_ok=True)
+        t_render = 0.0
+        for view in bar(views, desc="render"):
+            t0 = time.perf_counter()
+            r = renderer.render(view)
+            t_render += time.perf_counter() - t0
+            write_image(layout.image(f"{view.name}.png"), r.rgb)
+            write_depth(layout.depth, view.name, r.depth)
+            write_image(layout.mask(view.name), (r.mask * 255).astype(np.uint8))
+        sparse = sparse_model_from_surface(renderer, views, cfg.points, cfg.seed)
+        write_colmap_text(sparse, layout.sparse)
+        write_transforms(views, layout.transforms, world="none", depth_dir=layout.depth.name, mask_dir=layout.masks.name)
+        export(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), layout.gt_mesh)
+        info = {"source": source, "normalization": {"center": center.tolist(), "scale": scale,
+                                                    "formula": "world = (input - center) / scale"},
+                "config": asdict(cfg), "appearance": renderer.appearance.kind,
+                "bbox_diagonal": float(np.linalg.norm(mesh.bounds[1] - mesh.bounds[0])),
+                "render_seconds_per_view": t_render / len(views)}
+        atomic_write_json(layout.scene, info)
+        log.info("synth: %d views of %s (%s texture) written to %s", len(views), source, renderer.appearance.kind, out)
+        return SynthResult(out, views, mesh, t_render / len(views))
 
 
 def sparse_model_from_surface(renderer: Renderer, views: list[View], n_points: int, seed: int = 0) -> SparseModel:

@@ -578,6 +578,7 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     (default ``out``/textured/) with mesh.obj, mesh.mtl, texture.png, mesh.glb and preview.png. Returns facts
     for the report."""
     from .io.dataset import Dataset
+    from .io.output import MARKER
     from .mesh import load_mesh
 
     cfg = cfg or TextureConfig()
@@ -604,6 +605,7 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
         render_preview(res.mesh, tmp_preview, cameras=views)
         export_textured(res.mesh, dest)
         tmp_preview.replace(dest / "preview.png")
+        (dest / MARKER).write_text("written by photorecon\n")  # a later run may replace this folder
     finally:
         tmp_preview.unlink(missing_ok=True)
     log.info("texture: %d faces, %d charts, %d views used, %.2f texels per pixel -> %s", res.info["faces"],

@@ -1,5 +1,6 @@
 """Atomic writes: a temporary file in the same folder, then ``os.replace``, so an interrupted run never
-leaves a half-written file under the final name."""
+leaves a half-written file under the final name. A write that fails for lack of space removes the temporary
+file (and SQLite's journals beside it) and raises ``OutputError`` naming the file and its device."""
 from __future__ import annotations
 
 import json
@@ -7,6 +8,8 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+from .space import is_no_space, no_space_error
 
 
 _UMASK = os.umask(0)
@@ -24,9 +27,12 @@ def atomic_path(path: str | Path, suffix: str | None = None):
     try:
         yield Path(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    except BaseException as exc:
+        for leftover in (tmp, f"{tmp}-journal", f"{tmp}-wal", f"{tmp}-shm"):  # SQLite's side files too
+            if os.path.exists(leftover):
+                os.unlink(leftover)
+        if is_no_space(exc):
+            raise no_space_error(path) from None
         raise
 
 

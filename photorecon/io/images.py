@@ -21,6 +21,37 @@ def read_image(path: str | Path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def damaged_image(path: str | Path) -> str | None:
+    """Why the image file ``path`` is incomplete (e.g. "truncated: the file ends before the image data does"),
+    or None when it decodes to the end. A full decode with Pillow that reports truncation (OpenCV decodes a
+    truncated JPEG without an error, grey from where the data stops); JPEGs are decoded at 1/8 scale, which
+    still reads every byte of their data. Formats Pillow cannot open are not judged here (None)."""
+    from PIL import Image, ImageFile
+
+    path = Path(path)
+    try:
+        im = Image.open(path)
+    except Exception:  # not a format Pillow reads (or not an image): the caller's decoder decides
+        return None
+    keep = ImageFile.LOAD_TRUNCATED_IMAGES
+    ImageFile.LOAD_TRUNCATED_IMAGES = False
+    try:
+        with im:
+            if im.format == "JPEG":
+                im.draft(im.mode, (max(1, im.width // 8), max(1, im.height // 8)))
+            im.load()
+    except (OSError, SyntaxError, ValueError) as exc:
+        text = str(exc)
+        if "truncated" in text or "broken" in text or "end of" in text.lower():
+            return "truncated: the file ends before the image data does (an incomplete copy or download?)"
+        return f"damaged: {text}"
+    except Exception:  # Pillow's own limits (e.g. decompression-bomb size): not a damaged file
+        return None
+    finally:
+        ImageFile.LOAD_TRUNCATED_IMAGES = keep
+    return None
+
+
 def _png_has_alpha(path: Path) -> bool | None:
     """From a PNG's chunk headers, without decoding pixels: whether it has an alpha channel (colour type 4,
     grey + alpha, or 6, RGBA) or a transparency chunk (tRNS). None when the file is not a PNG."""
@@ -146,8 +177,20 @@ def write_image(path: str | Path, img: np.ndarray) -> Path:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), img):
-            raise InputDataError(f"{path}: could not write image")
+            image_write_failed(path, img.nbytes)
     return path
+
+
+def image_write_failed(path: Path, nbytes: int) -> None:
+    """A writer that only says it failed (OpenCV): ``OutputError``, "no space left" when the disk is nearly
+    full."""
+    from ..errors import OutputError
+    from .space import free_bytes, no_space_error
+
+    free = free_bytes(path.parent)
+    if free is not None and free < max(nbytes, 1 << 20):
+        raise no_space_error(path)
+    raise OutputError(f"{path}: could not write the image; check the folder's permissions and space")
 
 
 def depth_preview(depth: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
