@@ -59,6 +59,7 @@ class SynthConfig:
     jitter_pos: float = field(default=0.0, metadata={"help": "random camera offset, fraction of the radius", "range": (0.0, 10.0)})
     background: Literal["color", "texture"] = field(default="color", metadata={"help": "plain or textured backdrop"})
     points: int = field(default=4000, metadata={"help": "surface points sampled for the sparse COLMAP model", "range": (0, 100_000_000)})
+    seed: int = field(default=0, metadata={"help": "random seed (texture, jitter, sparse points)", "range": (0, 2**31 - 1)})
 
 
 # --- scenes ------------------------------------------------------------------------------------------------
