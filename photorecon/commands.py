@@ -14,9 +14,9 @@ QUALITY_PRESETS: dict[str, dict[str, object]] = {
                 "mvs.pm_iterations": 3, "mvs.pm_final_iterations": 0,
                 "fusion.voxel_footprints": 2.0},
     "default": {},
-    # full-resolution features and depth up to 3200 px, more sources and iterations, finer voxels
-    "high": {"sfm.max_image_size": 3200, "sfm.max_features": 16384,
-             "mvs.max_size": 3200, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
+    # features and depth up to 2400 px, more sources and iterations, finer voxels
+    "high": {"sfm.max_image_size": 2400, "sfm.max_features": 16384,
+             "mvs.max_size": 2400, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
              "fusion.voxel_footprints": 1.0},
 }
 

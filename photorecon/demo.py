@@ -25,7 +25,7 @@ class DemoConfig:
     """Settings of ``photorecon demo``."""
 
     scene: str = field(default="blob", metadata={"help": "built-in scene (blob, knot, room), or 'bunny': the Stanford bunny from a ring of cameras, meshed three ways", "metavar": "NAME"})
-    views: int = field(default=30, metadata={"help": "number of views", "range": (3, 10_000)})
+    views: int = field(default=30, metadata={"help": "number of views", "range": (2, 10_000)})
     width: int = field(default=512, metadata={"help": "image width, pixels", "range": (64, 8192)})
     height: int = field(default=384, metadata={"help": "image height, pixels", "range": (64, 8192)})
 
