@@ -525,8 +525,7 @@ def view(sub):
                         "200,000 for --html)")
     p.add_argument("--lighting", choices=("environment", "plain"), default="environment",
                    help="environment: soft image-based light from all sides (default); plain: directional "
-                        "lights only, which a browser without a GPU (software WebGL) draws at once instead of "
-                        "after ~20 s")
+                        "lights only, quick to draw in a browser without a GPU")
     p.add_argument("--html", metavar="FILE", help="write a standalone viewer page to FILE instead of serving")
     p.set_defaults(func=_run_view)
 

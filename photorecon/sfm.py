@@ -61,7 +61,7 @@ class SfMConfig:
     max_features: int = field(default=8192, metadata={"help": "most SIFT features per image", "range": (16, 1_000_000)})
     affine_sift: bool = field(default=True, metadata={"help": "estimate affine feature shapes: longer tracks across oblique views"})
     dsp_sift: bool = field(default=False, metadata={"help": "domain-size pooling SIFT descriptors (slower extraction, sometimes more accurate)"})
-    matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "which image pairs are matched: exhaustive = every pair; sequential = file-name order neighbours (videos, walks) plus loop closure; spatial = nearest by EXIF GPS; auto = exhaustive up to --exhaustive-max images, then spatial with GPS, else sequential"})
+    matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair, file-name neighbours (videos), or nearest by GPS; auto: exhaustive up to --exhaustive-max images"})
     exhaustive_max: int = field(default=80, metadata={"help": "largest image count --matching auto matches exhaustively", "range": (0, 1_000_000)})
     sequential_overlap: int = field(default=10, metadata={"help": "sequential matching: neighbours per image in file-name order", "range": (1, 100_000)})
     sequential_loops: bool = field(default=True, metadata={"help": "sequential matching: also match every k-th image with every other k-th one (k = --sequential-overlap), which closes loops"})

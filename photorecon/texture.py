@@ -64,7 +64,7 @@ class TextureConfig:
     smoothness: float = field(default=0.4, metadata={"help": "label smoothing: cost of a neighbour with another view, relative to a face's best-to-worst quality range", "range": (0.0, 1000.0)})
     smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)", "range": (0, 10_000)})
     exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
-    consistency: float = field(default=20.0, metadata={"help": "photo-consistency: a view whose colour of a face differs from the median over the face's views by more than this RGB distance (0-255) is not used for it (0 = off)", "range": (0.0, 1000.0)})
+    consistency: float = field(default=20.0, metadata={"help": "a view whose colour of a face is farther than this RGB distance (0-255) from the median is not used for it (0 = off)", "range": (0.0, 1000.0)})
 
 
 @dataclass
