@@ -62,14 +62,15 @@ def _on_sigterm(signum, frame):
     raise Terminated()
 
 
-def _install_signal_handlers() -> dict:
-    """SIGTERM -> ``Terminated`` (clean up as for Ctrl-C); SIGINT -> ``KeyboardInterrupt``. Installed after the
-    native libraries are loaded: pycolmap's glog puts its own failure handler (a native stack dump) on SIGTERM
-    when it is imported. Returns the previous handlers."""
-    try:
-        import pycolmap  # noqa: F401  (its import installs glog's handler; ours replaces it below)
-    except ImportError:  # pragma: no cover
-        pass
+def _install_signal_handlers(native: bool = True) -> dict:
+    """SIGTERM -> ``Terminated`` (clean up as for Ctrl-C); SIGINT -> ``KeyboardInterrupt``. With ``native``, first
+    load the native libraries that install handlers of their own: pycolmap's glog puts a failure handler (a
+    native stack dump) on SIGTERM when it is imported; ours replaces it. Returns the previous handlers."""
+    if native:
+        try:
+            import pycolmap  # noqa: F401
+        except ImportError:  # pragma: no cover
+            pass
     old = {}
     try:
         old[signal.SIGTERM] = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -88,6 +89,19 @@ def _restore_signal_handlers(old: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv``; returns the exit code. A parse error, an out-of-range value or ``--help``
+    raises ``SystemExit`` (argparse's; code 2 or 0) before any work."""
+    old_handlers = _install_signal_handlers(native=False)  # a SIGTERM while the parser is built: the same line
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as exc:  # before the command started
+        print("photorecon: interrupted", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        _restore_signal_handlers(old_handlers)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO,
@@ -99,11 +113,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     prog = f"photorecon {args.command}"
-    old_handlers: dict = {}
     try:
         if getattr(args, "config", None):
             apply_settings_file(parser.command_parser(args.command), args, args.config)
-        old_handlers = _install_signal_handlers()
+        _install_signal_handlers()  # again, after the native libraries' own
         return int(args.func(args) or 0)
     except PhotoreconError as exc:
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
@@ -120,12 +133,10 @@ def main(argv: list[str] | None = None) -> int:
             import traceback
 
             traceback.print_exc()
-        what = "out of memory; try --quality preview or a smaller --max-size" if isinstance(exc, MemoryError) \
-            else f"{type(exc).__name__}: {_one_line(exc, 300)}"
+        what = ("out of memory (a smaller working size needs less: --quality preview)" if isinstance(exc, MemoryError)
+                else f"{type(exc).__name__}: {_one_line(exc, 300)}")
         print(f"{prog}: error: {what} (run with -v for details)", file=sys.stderr)
         return InternalError.exit_code
-    finally:
-        _restore_signal_handlers(old_handlers)
 
 
 if __name__ == "__main__":  # pragma: no cover
