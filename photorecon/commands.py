@@ -307,6 +307,10 @@ def _run_sfm(args):
     _apply_quality(args)
     cfg = config_from_args(SfMConfig, args)
     scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
+    if not Path(args.images).exists():  # before the output folder is made
+        from .errors import NoImagesError
+
+        raise NoImagesError(f"{args.images}: no such image folder (or video file)")
     if args.masks:
         check_sfm_masks(args.images, args.masks)  # before anything is written
     out = prepare_output(args.out, args.overwrite, inputs=(args.images,) + ((args.masks,) if args.masks else ()))

@@ -336,6 +336,7 @@ def test_fuzz_flag_values_never_give_a_traceback(fast_main, parser, tmp_path, ca
         err = capsys.readouterr().err
         assert code not in (0, None, 10), (argv, code, err)
         _error_line(err, cmd)
+    assert not (tmp_path / "missing").exists()  # no output folder made for an input that is not there
 
 
 def _run(*argv, timeout=120):
