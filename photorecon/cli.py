@@ -1,32 +1,50 @@
-"""Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns
-``PhotoreconError`` into one clear line on stderr and the error class's exit code."""
+"""Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns every failure
+into one line on stderr and an exit code: a ``PhotoreconError`` its class's code, a parse error or an
+out-of-range value 2, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
+SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes)."""
 from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 
 from . import __version__
-from .config import COMMANDS
-from .errors import PhotoreconError, from_os_error
+from .config import COMMANDS, Parser, apply_settings_file
+from .errors import InternalError, PhotoreconError, from_os_error
 
 log = logging.getLogger("photorecon")
 
+EXIT_INTERRUPTED = 130  # SIGINT (Ctrl-C): 128 + 2
+EXIT_TERMINATED = 143  # SIGTERM: 128 + 15
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread on SIGTERM: every ``except KeyboardInterrupt`` / ``except BaseException``
+    clean-up runs as for Ctrl-C (partial folders removed, the output lock released)."""
+
+
+def build_parser() -> Parser:
+    parser = Parser(
         prog="photorecon",
         description="Photos -> camera poses, per-image depth and one fused triangle mesh, on a plain CPU.")
     parser.add_argument("--version", action="version", version=f"photorecon {__version__}")
     parser.add_argument("-q", "--quiet", action="store_true", help="only errors; no progress bars")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug messages")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug messages; tracebacks of unexpected errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     _load_commands()
     for add in COMMANDS.values():
         add(sub)
     for sp in sub.choices.values():  # -q / -v also after the sub-command
         sp.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="only errors; no progress bars")
-        sp.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help="debug messages")
+        sp.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                        help="debug messages; tracebacks of unexpected errors")
+        if any("." in o for a in sp._actions for o in a.option_strings):  # a command built from stage configs
+            sp.add_argument("--config", metavar="FILE.toml",
+                            help="settings file: [STAGE] tables (e.g. [mvs] max_size = 800) or plain flag names; "
+                                 "flags on the command line win")
+        if isinstance(sp, Parser):
+            sp.add_help_all()
     return parser
 
 
@@ -35,7 +53,55 @@ def _load_commands() -> None:
     from . import commands  # noqa: F401
 
 
+def _one_line(text: str, limit: int = 400) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def _install_signal_handlers(native: bool = True) -> dict:
+    """SIGTERM -> ``Terminated`` (clean up as for Ctrl-C); SIGINT -> ``KeyboardInterrupt``. With ``native``, first
+    load the native libraries that install handlers of their own: pycolmap's glog puts a failure handler (a
+    native stack dump) on SIGTERM when it is imported; ours replaces it. Returns the previous handlers."""
+    if native:
+        try:
+            import pycolmap  # noqa: F401
+        except ImportError:  # pragma: no cover
+            pass
+    old = {}
+    try:
+        old[signal.SIGTERM] = signal.signal(signal.SIGTERM, _on_sigterm)
+        old[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:  # not the main thread (main() called from a thread): keep what is there
+        pass
+    return old
+
+
+def _restore_signal_handlers(old: dict) -> None:
+    for sig, handler in old.items():
+        try:
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        except (ValueError, TypeError):  # pragma: no cover
+            pass
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv``; returns the exit code. A parse error, an out-of-range value or ``--help``
+    raises ``SystemExit`` (argparse's; code 2 or 0) before any work."""
+    old_handlers = _install_signal_handlers(native=False)  # a SIGTERM while the parser is built: the same line
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as exc:  # before the command started
+        print("photorecon: interrupted", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        _restore_signal_handlers(old_handlers)
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO,
@@ -46,18 +112,31 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    prog = f"photorecon {args.command}"
     try:
+        if getattr(args, "config", None):
+            apply_settings_file(parser.command_parser(args.command), args, args.config)
+        _install_signal_handlers()  # again, after the native libraries' own
         return int(args.func(args) or 0)
     except PhotoreconError as exc:
-        print(f"photorecon {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except OSError as exc:  # a file system failure that no stage turned into a photorecon error
         err = from_os_error(exc, getattr(args, "out", None))
-        print(f"photorecon {args.command}: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {_one_line(err)}", file=sys.stderr)
         return err.exit_code
-    except KeyboardInterrupt:
-        print(f"photorecon {args.command}: interrupted; incomplete outputs were not kept", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"{prog}: interrupted; incomplete outputs were not kept", file=sys.stderr)
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    except Exception as exc:  # a bug: one line, the traceback with -v
+        if args.verbose:
+            import traceback
+
+            traceback.print_exc()
+        what = ("out of memory (a smaller working size needs less: --quality preview)" if isinstance(exc, MemoryError)
+                else f"{type(exc).__name__}: {_one_line(exc, 300)}")
+        print(f"{prog}: error: {what} (run with -v for details)", file=sys.stderr)
+        return InternalError.exit_code
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,7 +3,78 @@ from __future__ import annotations
 
 import argparse
 
-from .config import add_config_arguments, command, config_from_args
+from .config import Ranged, add_config_arguments, apply_preset, command, config_from_args
+
+# Quality presets of ``reconstruct --quality`` (and of ``mvs`` / ``sfm`` for their own stages): settings by
+# ``dest``; a flag the user gives (or a --config file sets) wins over the preset. "default" changes nothing.
+QUALITY_PRESETS: dict[str, dict[str, object]] = {
+    # about 1/4 of the default's depth pixels, half the sources, two pyramid levels, coarser voxels: a quick look
+    "preview": {"sfm.max_image_size": 1024, "sfm.max_features": 4096,
+                "mvs.max_size": 800, "mvs.n_sources": 4, "mvs.filter_sources": 8, "mvs.pm_levels": 2,
+                "mvs.pm_iterations": 3, "mvs.pm_final_iterations": 0,
+                "fusion.voxel_footprints": 2.0},
+    "default": {},
+    # features and depth up to 2400 px, more sources and iterations, finer voxels
+    "high": {"sfm.max_image_size": 2400, "sfm.max_features": 16384,
+             "mvs.max_size": 2400, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
+             "fusion.voxel_footprints": 1.0},
+}
+
+# What -h shows of the commands with many options (the others: --help-all). An option a command lacks is skipped.
+_BASIC = ["-h", "--help-all", "-o", "--overwrite", "-q", "-v", "--config", "--quality", "--force"]
+COMMON_OPTIONS: dict[str, list[str]] = {
+    "reconstruct": _BASIC + ["--scene", "--poses", "--masks", "--texture", "--formats", "--depth-model",
+                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size", "--object",
+                             "--target-faces", "--cluster", "--marker-size"],
+    "sfm": _BASIC + ["--masks", "--intrinsics", "--camera-model", "--max-image-size", "--max-features",
+                     "--matching", "--mapper", "--marker-size", "--video-every"],
+    "mvs": _BASIC + ["--masks", "--mvs", "--max-size", "--n-sources", "--min-consistent", "--min-confidence",
+                     "--cluster"],
+    "fuse": _BASIC + ["--depth-dir", "--masks", "--formats", "--mesher", "--voxel-size", "--trunc-voxels",
+                      "--scene", "--object", "--target-faces", "--crop", "--cluster"],
+}
+
+
+# -h texts of common options whose full help (in --help-all) is longer than two lines
+SHORT_HELP: dict[str, str] = {
+    "--quality": "preview: fast and coarse; default; high: finer and slower (--help-all: what each sets)",
+    "--overwrite": "allow a non-empty output folder not made by photorecon",
+    "--config": "settings file (TOML); flags on the command line win",
+    "--masks": "mask folder (NAME.png, 0 = ignore the pixel; default: alpha channel)",
+    "--intrinsics": "3x3 K text file (pixels): known intrinsics, kept fixed",
+    "--max-image-size": "SfM: longest image side for features, pixels (default: 1600)",
+    "--max-size": "depth: working resolution, longest side in pixels (default: 1600; 0 = full)",
+    "--voxel-size": "TSDF voxel size, scene units (default: from the depth maps' resolution)",
+    "--object": "object on a table or turntable: remove the support under it",
+    "--scene": "auto: detect an object capture; object: remove its support; open: keep the ground",
+    "--target-faces": "simplify the mesh to this many faces (default: 0 = keep)",
+    "--cluster": "run the depth and fusion tasks on Dask: local:N or tcp://HOST:PORT",
+    "--marker-size": "ArUco marker edge length, metres: scale the model to metres",
+    "--depth-model": "monocular depth from this ONNX model (MiDaS-style) instead of MVS",
+    "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
+    "--texture": "also bake a UV-textured mesh from the photos (OUT/textured/)",
+    "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
+    "--matching": "image pairs to match: auto, exhaustive, sequential, spatial (default: auto)",
+    "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",
+    "--mvs": "patchmatch (default) or sweep (a fast plane sweep)",
+    "--min-confidence": "drop depths below this confidence, 0..1 (default: 0.2)",
+    "--mesher": "tsdf (default), grid or poisson",
+    "--crop": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units",
+}
+
+
+def _quality_arg(p: argparse.ArgumentParser, what: str) -> None:
+    def show(name):
+        return ", ".join(f"{d.split('.', 1)[1].replace('_', '-')} {v}" for d, v in QUALITY_PRESETS[name].items()
+                         if d.split(".", 1)[0] in what)
+
+    p.add_argument("--quality", choices=list(QUALITY_PRESETS), default="default",
+                   help=f"preset: preview = fast and coarse ({show('preview')}); high = slower and finer "
+                        f"({show('high')}); flags given override it (default: default)")
+
+
+def _apply_quality(args) -> None:
+    apply_preset(args, QUALITY_PRESETS[getattr(args, "quality", "default") or "default"])
 
 
 def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
@@ -58,6 +129,7 @@ def fuse(sub):
     add_config_arguments(p, FusionConfig)
     add_config_arguments(p, CleanConfig)
     _cluster_args(p)
+    p.set_common(COMMON_OPTIONS["fuse"], SHORT_HELP)
     p.set_defaults(func=_run_fuse)
 
 
@@ -75,16 +147,6 @@ def _run_fuse(args):
     return 0
 
 
-def _tau_list(text: str) -> list[float]:
-    try:
-        taus = [float(t) for t in text.split(",") if t.strip()]
-    except ValueError:
-        taus = []
-    if not taus or not all(t > 0 and t != float("inf") for t in taus):
-        raise argparse.ArgumentTypeError(f"expected one or more distances > 0 separated by commas, got {text!r}")
-    return taus
-
-
 @command
 def eval_cmd(sub):
     p = sub.add_parser("eval", help="evaluate a mesh against ground truth (or poses against a reference)",
@@ -98,10 +160,10 @@ def eval_cmd(sub):
                                    "into the truth's frame through the cameras (see --align-poses).")
     p.add_argument("--mesh", help="result mesh (or point cloud, against a point-cloud --gt)")
     p.add_argument("--gt", help="ground truth: a mesh, or a point cloud (PLY with vertices and no faces)")
-    p.add_argument("--tau", type=_tau_list, metavar="T[,T...]",
+    p.add_argument("--tau", type=Ranged(float, 0.0, None, exclusive_min=True, sep=True), metavar="T[,T...]",
                    help="distance thresholds in scene units, e.g. 0.0005,0.001,0.002 (default: 1%%,0.5%% of the "
                         "GT's bounding-box diagonal); with a mesh GT the first is the headline tau")
-    p.add_argument("--crop-to-reference", type=float, metavar="MARGIN",
+    p.add_argument("--crop-to-reference", type=Ranged(float, 0.0, None), metavar="MARGIN",
                    help="ignore result samples farther than MARGIN (scene units) from the GT's bounding box: "
                         "background the reference does not cover; completeness is unaffected")
     p.add_argument("--icp", action="store_true", help="refine the result onto the truth with ICP first")
@@ -285,8 +347,10 @@ def sfm(sub):
     _out_args(p)
     p.add_argument("--force", action="store_true", help="recompute every stage instead of reusing cached ones")
     _masks_arg(p, "no features there (the images' alpha channel counts too); undistorted into OUT/masks")
+    _quality_arg(p, ("sfm",))
     add_config_arguments(p, SfMConfig)
     add_config_arguments(p.add_argument_group("metric scale"), ScaleConfig)
+    p.set_common(COMMON_OPTIONS["sfm"], SHORT_HELP)
     p.set_defaults(func=_run_sfm)
 
 
@@ -297,8 +361,13 @@ def _run_sfm(args):
     from .scale import ScaleConfig, scale_output
     from .sfm import SfMConfig, check_sfm_masks, run_sfm
 
+    _apply_quality(args)
     cfg = config_from_args(SfMConfig, args)
     scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
+    if not Path(args.images).exists():  # before the output folder is made
+        from .errors import NoImagesError
+
+        raise NoImagesError(f"{args.images}: no such image folder (or video file)")
     if args.masks:
         check_sfm_masks(args.images, args.masks)  # before anything is written
     with output_folder(args.out, args.overwrite, inputs=(args.images, args.masks, cfg.intrinsics)) as out:
@@ -334,7 +403,7 @@ def convert(sub):
     p.add_argument("--neus-world", choices=["normalized", "original"], default="normalized",
                    help="world of a NeuS SRC: normalized (world_mat @ scale_mat, the unit-sphere frame NeuS trains "
                         "in; default) or original (world_mat alone)")
-    p.add_argument("--bounds", nargs=2, type=float, metavar=("NEAR", "FAR"),
+    p.add_argument("--bounds", nargs=2, type=Ranged(float, 0.0, None, exclusive_min=True), metavar=("NEAR", "FAR"),
                    help="LLFF output: near and far depth for every image (default: from the sparse points)")
     p.set_defaults(func=_run_convert)
 
@@ -358,6 +427,8 @@ def mvs(sub):
                                   "(sparse/0 or transforms.json) and sparse points; writes depth/NAME.npy, "
                                   "NAME.conf.npy, NAME.normal.npy and NAME.png to DATASET/depth (or -o DIR).")
     _masks_arg(p, "no depth there (default: DATASET/masks, else the images' alpha channel)")
+    _quality_arg(p, ("mvs",))
+    p.set_common(COMMON_OPTIONS["mvs"], SHORT_HELP)
 
 
 def _depth_parser(sub, name: str, cfg_type, func, help: str, description: str,
@@ -408,6 +479,7 @@ def _dataset_output(ds, out, default: str, names):
 def _run_mvs(args):
     from .depth.mvs import MVSConfig, run_mvs
 
+    _apply_quality(args)
     ds, rep = _run_depth_tasks(args, run_mvs, MVSConfig, masks=args.masks)
     where = args.out or f"{args.dataset}/depth"
     print(f"mvs: depth for {rep.views} of {len(ds.views)} views ({rep.seconds_per_view:.2f} s/view) -> {where}")
@@ -433,7 +505,9 @@ def reconstruct(sub):
     p.add_argument("images", help="image folder or video file (never written to)")
     _out_args(p)
     p.add_argument("--force", action="store_true", help="recompute every stage")
+    _quality_arg(p, ("sfm", "mvs", "fusion"))
     _add_stage_args(p)
+    p.set_common(COMMON_OPTIONS["reconstruct"], SHORT_HELP)
     p.set_defaults(func=_run_reconstruct)
 
 
@@ -447,6 +521,7 @@ def _run_reconstruct(args):
     from .sfm import SfMConfig
     from .texture import TextureConfig
 
+    _apply_quality(args)
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
                         config_from_args(MVSConfig, args), config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args),
@@ -528,14 +603,13 @@ def view(sub):
                                    "writes a standalone viewer page (one file, no server, no network) and exits.")
     p.add_argument("result", help="result folder (OUT of 'reconstruct' or 'fuse') or a mesh file (never written to)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1, this machine only)")
-    p.add_argument("--port", type=int, default=8080, help="port (default: 8080; 0 = any free port)")
-    p.add_argument("--max-faces", type=int, default=None,
+    p.add_argument("--port", type=Ranged(int, 0, 65535), default=8080, help="port (default: 8080; 0 = any free port)")
+    p.add_argument("--max-faces", type=Ranged(int, 4, 2_000_000_000), default=None,
                    help=f"decimate larger meshes to this many faces (default: {VIEW_MAX_FACES:,} served, "
                         "200,000 for --html)")
     p.add_argument("--lighting", choices=("environment", "plain"), default="environment",
                    help="environment: soft image-based light from all sides (default); plain: directional "
-                        "lights only, which a browser without a GPU (software WebGL) draws at once instead of "
-                        "after ~20 s")
+                        "lights only, quick to draw in a browser without a GPU")
     p.add_argument("--html", metavar="FILE", help="write a standalone viewer page to FILE instead of serving")
     p.set_defaults(func=_run_view)
 
@@ -584,7 +658,8 @@ def texture(sub):
     p.add_argument("dataset", metavar="OUT", help="a reconstruct output (or any dataset folder with images and cameras)")
     p.add_argument("--mesh", help="mesh to texture (default: OUT/mesh.ply)")
     p.add_argument("-o", "--out", help="output folder (default: OUT/textured); replaced as a whole")
-    p.add_argument("--target-faces", dest="texture_faces", type=int, default=TextureConfig.texture_faces,
+    p.add_argument("--target-faces", dest="texture_faces", type=Ranged(int, 4, 2_000_000_000, also=(0,)),
+                   default=TextureConfig.texture_faces,
                    help="simplify the mesh to about this many faces first (0 = keep; default: 0)")
     add_config_arguments(p, TextureConfig, skip=("texture_faces",))
     p.set_defaults(func=_run_texture)

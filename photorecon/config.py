@@ -7,15 +7,416 @@ the plain alias ``--NAME`` as long as no other config on the same command alread
 thus share a setting's name (``threads``, ``seed``): the plain flag belongs to the first config added, the
 prefixed flags reach each stage on its own, and nothing crashes. Values land in ``args`` under the prefixed
 ``dest``, so ``config_from_args`` never mixes two stages' settings.
+
+Numeric fields declare their valid values in their metadata, checked when the arguments are parsed (a bad
+value exits 2 with one line naming the flag and the range, before any work) and again by ``validate`` on the
+config itself (values from a ``--config`` file, a preset, or the Python API)::
+
+    "range": (LO, HI)          inclusive bounds; None = unbounded on that side (always finite)
+    "exclusive_min": True      LO itself is not allowed (a size or distance > 0)
+    "also": (V, ...)           special values outside the range (``-1`` = all cores, ``0`` = off)
+    "odd": True                an odd integer (a window size)
+    "length": N                a comma-separated tuple of exactly N numbers (each within the range)
+
+Settings are resolved in this order, each overriding the one before: the config's default, the command's own
+default (``defaults=``), a preset (``--quality``), a ``--config FILE.toml``, and flags given on the command line.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import types
 import typing
 
-# --- configs -> argparse -----------------------------------------------------------------------------------
+# --- ranges -------------------------------------------------------------------------------------------------
+
+
+class Ranged:
+    """An argparse ``type`` that parses a number (or a comma-separated tuple of numbers) and checks its range;
+    its ``ArgumentTypeError`` states the valid values. ``kind`` is ``int`` or ``float``."""
+
+    def __init__(self, kind: type, lo=None, hi=None, *, exclusive_min: bool = False, also: tuple = (),
+                 odd: bool = False, length: int | None = None, sep: bool = False):
+        self.kind, self.lo, self.hi = kind, lo, hi
+        self.exclusive_min, self.also, self.odd = exclusive_min, tuple(also), odd
+        self.length = length  # a tuple of exactly this many values
+        self.sep = sep or length is not None  # comma-separated values (a list when length is None)
+        self.__name__ = kind.__name__
+
+    @classmethod
+    def from_metadata(cls, kind: type, md: typing.Mapping) -> Ranged | None:
+        if "range" not in md:
+            return None
+        lo, hi = md["range"]
+        return cls(kind, lo, hi, exclusive_min=md.get("exclusive_min", False), also=md.get("also", ()),
+                   odd=md.get("odd", False), length=md.get("length"))
+
+    def describe(self) -> str:
+        """'an integer in 64..65536 or 0', 'a number > 0', '6 values separated by commas, each a number'."""
+        what = "an integer" if self.kind is int else "a number"
+        lo, hi = _num(self.lo), _num(self.hi)
+        if lo is not None and hi is not None and not self.exclusive_min:
+            rng = f" in {lo}..{hi}"
+        elif lo is not None and hi is not None:
+            rng = f" > {lo} and <= {hi}"
+        elif lo is not None:
+            rng = f" {'>' if self.exclusive_min else '>='} {lo}"
+        elif hi is not None:
+            rng = f" <= {hi}"
+        else:
+            rng = "" if self.kind is int else " (finite)"
+        text = what + rng + (", odd" if self.odd else "")
+        if self.also:
+            text += " or " + " or ".join(str(a) for a in self.also)
+        if self.length is not None:
+            return f"{self.length} values separated by commas, each {text}"
+        if self.sep:
+            return f"one or more values separated by commas, each {text}"
+        return text
+
+    def short(self) -> str:
+        """The range for a help line: '64..65536 or 0', '> 0', '>= 1'."""
+        lo, hi = _num(self.lo), _num(self.hi)
+        if lo is not None and hi is not None:
+            text = f"> {lo}, <= {hi}" if self.exclusive_min else f"{lo}..{hi}"
+        elif lo is not None:
+            text = f"{'>' if self.exclusive_min else '>='} {lo}"
+        elif hi is not None:
+            text = f"<= {hi}"
+        else:
+            text = "any"
+        if self.odd:
+            text += ", odd"
+        if self.also:
+            text += " or " + " or ".join(str(a) for a in self.also)
+        return text
+
+    def error(self, value) -> str | None:
+        """Why ``value`` (already a number) is not valid, or None."""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"expected {self.describe()}, got {value!r}"
+        if self.kind is int and not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
+            return f"expected {self.describe()}, got {value!r}"
+        if not math.isfinite(value):
+            return f"expected {self.describe()}, got {value!r}"
+        if value in self.also:
+            return None
+        ok = ((self.lo is None or (value > self.lo if self.exclusive_min else value >= self.lo))
+              and (self.hi is None or value <= self.hi) and (not self.odd or int(value) % 2 == 1))
+        return None if ok else f"expected {self.describe()}, got {value!r}"
+
+    def _one(self, text: str):
+        text = text.strip()
+        try:
+            value = self.kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}") from None
+        if self.error(value) is not None:
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
+        return value
+
+    def __call__(self, text: str):
+        if not self.sep:
+            return self._one(text)
+        parts = [t for t in text.replace(",", " ").split()]
+        if not parts or (self.length is not None and len(parts) != self.length):
+            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
+        values = [self._one(t) for t in parts]
+        return tuple(values) if self.length is not None else values
+
+    def check(self, value) -> str | None:
+        """Why a config value (a number, or a tuple/list of them) is not valid, or None."""
+        if not self.sep:
+            return self.error(value)
+        if not isinstance(value, (tuple, list)) or (self.length is not None and len(value) != self.length):
+            return f"expected {self.describe()}, got {value!r}"
+        for v in value:
+            if self.error(v) is not None:
+                return f"expected {self.describe()}, got {value!r}"
+        return None
+
+    def __repr__(self) -> str:
+        return f"Ranged({self.describe()})"
+
+
+def _num(x):
+    """1000000.0 -> '1000000', 0.5 -> '0.5', None -> None (for messages)."""
+    if x is None:
+        return None
+    if isinstance(x, float) and x.is_integer() and abs(x) < 1e9:
+        return str(int(x))
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def field_flag(f: dataclasses.Field) -> str:
+    """A config field's plain flag: ``metadata['flag']`` or ``--field-name``."""
+    return f.metadata.get("flag") or "--" + f.name.replace("_", "-")
+
+
+def _field_kind(tp) -> tuple[type | None, bool]:
+    """(int or float or None, is a tuple) of a field's annotation (``X | None`` unwrapped)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        inner = [a for a in args if a is not type(None)]
+        return _field_kind(inner[0]) if len(inner) == 1 else (None, False)
+    if origin is tuple:
+        return float, True
+    if tp in (int, float):
+        return tp, False
+    return None, False
+
+
+def validate(cfg) -> None:
+    """Check every field of the config ``cfg`` that declares a range (see the module docstring); raises
+    ``BadArgumentError`` naming the flag, the valid values and the value found."""
+    from .errors import BadArgumentError
+
+    hints = typing.get_type_hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        kind, is_tuple = _field_kind(hints[f.name])
+        value = getattr(cfg, f.name)
+        if kind is None or value is None:
+            continue
+        rng = Ranged.from_metadata(kind, f.metadata)
+        if rng is None:
+            continue
+        if is_tuple and rng.length is None:
+            rng.sep = True
+        why = rng.check(value)
+        if why is None and f.metadata.get("box") and not all(a < b for a, b in zip(value[:3], value[3:])):
+            why = f"expected xmin < xmax, ymin < ymax, zmin < zmax, got {value!r}"
+        if why is not None:
+            raise BadArgumentError(f"{field_flag(f)}: {why}")
+
+
+# --- the command-line parser ----------------------------------------------------------------------------------
+
+
+class _Given:
+    """Mixin for argparse actions: record the ``dest`` of every option the user gave in ``namespace._given``,
+    so that presets and settings files fill in only what the command line left open."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        super().__call__(parser, namespace, values, option_string)  # type: ignore[misc]
+        given = getattr(namespace, "_given", None)
+        if given is None:
+            given = set()
+            setattr(namespace, "_given", given)
+        given.add(self.dest)
+
+
+class _Store(_Given, argparse._StoreAction):
+    pass
+
+
+class _StoreTrue(_Given, argparse._StoreTrueAction):
+    pass
+
+
+class _StoreFalse(_Given, argparse._StoreFalseAction):
+    pass
+
+
+class _StoreConst(_Given, argparse._StoreConstAction):
+    pass
+
+
+class BooleanFlag(_Given, argparse.BooleanOptionalAction):
+    """``--flag/--no-flag``, recorded as given."""
+
+
+def given(args: argparse.Namespace) -> set[str]:
+    """The ``dest`` of every option given on the command line (or by a ``--config`` file)."""
+    return getattr(args, "_given", None) or set()
+
+
+class _HelpAll(argparse.Action):
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.print_help(full=True)
+        parser.exit()
+
+
+class _Formatter(argparse.HelpFormatter):
+    """In a short help (``short = True``): an option's plain flags only, not its ``--PREFIX.NAME`` aliases."""
+
+    short = False
+
+    def _format_action_invocation(self, action):
+        if self.short and action.option_strings:
+            plain = [o for o in action.option_strings if "." not in o]
+            if plain and len(plain) < len(action.option_strings):
+                action = argparse.Action(plain, action.dest, nargs=action.nargs, metavar=action.metavar,
+                                         choices=action.choices)
+        return super()._format_action_invocation(action)
+
+
+class Parser(argparse.ArgumentParser):
+    """``ArgumentParser`` with one-line errors (``PROG: error: MESSAGE``, exit 2, no usage block), a short ``-h``
+    (only the options in ``common``; the rest are listed by ``--help-all``) and option tracking (``given``)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
+        self.common: set[str] | None = None  # option strings -h shows; None = all
+        self.short_help: dict[str, str] = {}  # option -> its help text in -h (default: the full one)
+        self._short = False
+        for name, cls in ((None, _Store), ("store", _Store), ("store_true", _StoreTrue),
+                          ("store_false", _StoreFalse), ("store_const", _StoreConst)):
+            self.register("action", name, cls)
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        ns, extra = self.parse_known_args(args, namespace)
+        if extra:  # said by the sub-command's parser, which names the command
+            sub = self.command_parser(getattr(ns, "command", None))
+            where = sub or self
+            where.error(f"unrecognized arguments: {' '.join(extra)} (see {where.prog} --help"
+                        + (" or --help-all)" if isinstance(where, Parser) and where.common is not None else ")"))
+        return ns
+
+    def command_parser(self, name: str | None) -> argparse.ArgumentParser | None:
+        """The parser of sub-command ``name`` (None when there is no such sub-command)."""
+        for a in self._actions:
+            if isinstance(a, argparse._SubParsersAction) and name in a.choices:
+                return a.choices[name]
+        return None
+
+    def set_common(self, options: typing.Iterable[str], short_help: typing.Mapping[str, str] | None = None) -> None:
+        """Show only these options (and the positionals) in ``-h``, with the help texts ``short_help`` where
+        given; add ``--help-all`` for the full list. Options the parser does not have are ignored (a field
+        another stage may add later)."""
+        self.common = set(options) | {"-h", "--help-all"}
+        self.short_help = dict(short_help or {})
+        self.add_help_all()
+
+    def _get_formatter(self):
+        formatter = super()._get_formatter()
+        formatter.short = getattr(self, "_short", False)
+        return formatter
+
+    def add_help_all(self) -> None:
+        if "--help-all" not in self._option_string_actions:
+            self.add_argument("--help-all", action=_HelpAll, help="list every option, grouped by stage, and exit")
+
+    def hidden_actions(self) -> list[argparse.Action]:
+        """The options ``-h`` leaves out."""
+        if self.common is None:
+            return []
+        return [a for a in self._actions if a.option_strings and a.help is not argparse.SUPPRESS
+                and not set(a.option_strings) & self.common]
+
+    def _short_usage(self) -> str:
+        """'%(prog)s [-h] [--help-all] [OPTIONS] -o OUT IMAGES': the required options and the positionals."""
+        parts = ["%(prog)s [-h] [--help-all] [OPTIONS]"]
+        for a in self._actions:
+            if a.option_strings and a.required:
+                parts.append(f"{a.option_strings[0]} {a.metavar or a.dest.upper()}")
+        for a in self._actions:
+            if not a.option_strings and a.help is not argparse.SUPPRESS:
+                parts.append(a.metavar or a.dest.upper())
+        return " ".join(parts)
+
+    def format_help(self, full: bool = False) -> str:  # type: ignore[override]
+        hidden = self.hidden_actions()
+        if not hidden:
+            return super().format_help()
+        saved_usage = self.usage
+        self.usage = self._short_usage()
+        saved = [(a, a.help) for a in self._actions]
+        self._short = not full
+        if not full:
+            for a in self._actions:
+                if a in hidden:
+                    a.help = argparse.SUPPRESS
+                elif set(a.option_strings) & set(self.short_help):
+                    a.help = self.short_help[next(o for o in a.option_strings if o in self.short_help)]
+        try:
+            text = super().format_help()
+        finally:
+            self.usage = saved_usage
+            self._short = False
+            for a, h in saved:
+                a.help = h
+        if not full:
+            text += f"\n{len(hidden)} more options, every stage's settings: {self.prog} --help-all\n"
+        return text
+
+    def print_help(self, file=None, full: bool = False):  # type: ignore[override]
+        import sys
+
+        (file or sys.stdout).write(self.format_help(full=full))
+
+
+def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), defaults=None) -> None:
+    """One ``--PREFIX.FLAG`` (and, when free, ``--FLAG``) per dataclass field of ``config_cls`` (or
+    ``metadata['flag']``); help from ``field(metadata={'help': ...})``, choices from ``Literal`` annotations,
+    ``--flag/--no-flag`` for booleans, ranges from the metadata (module docstring). Default values come from
+    the instance ``defaults`` when given (a stage whose caller overrides a config default, e.g. the pipeline's
+    wider TSDF truncation), else the class. ``parser`` may be an argument group: name clashes are checked
+    across the whole parser."""
+    hints = typing.get_type_hints(config_cls)
+    prefix = config_prefix(config_cls)
+    taken = parser._option_string_actions  # shared by a parser and its groups
+    for f in dataclasses.fields(config_cls):
+        if f.name in skip or f.metadata.get("cli") is False:
+            continue
+        plain = field_flag(f)
+        prefixed = f"--{prefix}.{plain[2:]}"
+        flags = [plain, prefixed] if plain not in taken else [prefixed]
+        tp = hints[f.name]
+        if defaults is not None:
+            default = getattr(defaults, f.name)
+        else:
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        help_ = f.metadata.get("help", "")
+        kw: dict = {"dest": _dest(prefix, f.name), "default": default}
+        origin, args = typing.get_origin(tp), typing.get_args(tp)
+        if tp is bool:
+            kw["help"] = f"{help_} (default: {'on' if default else 'off'})"
+            parser.add_argument(*flags, action=BooleanFlag, **kw)
+            continue
+        kind, is_tuple = _field_kind(tp)
+        rng = Ranged.from_metadata(kind, f.metadata) if kind is not None else None
+        if rng is not None and is_tuple:
+            rng.sep = True
+        notes = []
+        if default is not None and "default:" not in help_:
+            notes.append("default: " + (",".join(map(str, default)) if isinstance(default, tuple) else str(default)))
+        if rng is not None and not is_tuple:
+            notes.append(rng.short())
+        kw["help"] = help_ + (f" ({'; '.join(notes)})" if notes else "")
+        if origin is typing.Literal:
+            kw["choices"] = list(args)
+            kw["type"] = type(args[0])
+        elif rng is not None:
+            kw["type"] = rng
+        elif kind is not None:
+            kw["type"] = _parse_tuple if is_tuple else Ranged(kind)  # no declared range: finite values
+        elif origin in (typing.Union, types.UnionType):
+            inner = [a for a in args if a is not type(None)]
+            kw["type"] = inner[0]
+        else:
+            kw["type"] = tp
+        if origin is not typing.Literal:  # choices show as {a,b,c}
+            kw["metavar"] = f.metadata.get("metavar") or (
+                "X,Y,Z,..." if is_tuple else "N" if kind is int else "X" if kind is float else "TEXT")
+        parser.add_argument(*flags, **kw)
+
+
+def _parse_tuple(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(x) for x in text.replace(",", " ").split())
+    except ValueError:
+        values = ()
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite numbers separated by commas, got {text!r}")
+    return values
 
 
 def config_prefix(config_cls) -> str:
@@ -28,61 +429,96 @@ def _dest(prefix: str, name: str) -> str:
     return f"{prefix}.{name}"
 
 
-def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), defaults=None) -> None:
-    """One ``--PREFIX.FLAG`` (and, when free, ``--FLAG``) per dataclass field of ``config_cls`` (or
-    ``metadata['flag']``); help from ``field(metadata={'help': ...})``, choices from ``Literal`` annotations,
-    ``--flag/--no-flag`` for booleans. Default values come from the instance ``defaults`` when given (a stage
-    whose caller overrides a config default, e.g. the pipeline's wider TSDF truncation), else the class.
-    ``parser`` may be an argument group: name clashes are checked across the whole parser."""
-    hints = typing.get_type_hints(config_cls)
-    prefix = config_prefix(config_cls)
-    taken = parser._option_string_actions  # shared by a parser and its groups
-    for f in dataclasses.fields(config_cls):
-        if f.name in skip or f.metadata.get("cli") is False:
-            continue
-        plain = f.metadata.get("flag") or "--" + f.name.replace("_", "-")
-        prefixed = f"--{prefix}.{plain[2:]}"
-        flags = [plain, prefixed] if plain not in taken else [prefixed]
-        tp = hints[f.name]
-        if defaults is not None:
-            default = getattr(defaults, f.name)
-        else:
-            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        help_ = f.metadata.get("help", "")
-        kw: dict = {"dest": _dest(prefix, f.name), "default": default, "help": f"{help_} (default: {default})"}
-        origin, args = typing.get_origin(tp), typing.get_args(tp)
-        if tp is bool:
-            parser.add_argument(*flags, action=argparse.BooleanOptionalAction, **kw)
-            continue
-        if origin is typing.Literal:
-            kw["choices"] = list(args)
-            kw["type"] = type(args[0])
-        elif origin in (typing.Union, types.UnionType):
-            inner = [a for a in args if a is not type(None)]
-            kw["type"] = _parse_tuple if typing.get_origin(inner[0]) is tuple else inner[0]
-        elif origin is tuple:
-            kw["type"] = _parse_tuple
-        else:
-            kw["type"] = tp
-        kw["metavar"] = f.name.upper()
-        parser.add_argument(*flags, **kw)
-
-
-def _parse_tuple(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.replace(",", " ").split())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected numbers separated by commas, got {text!r}") from None
-
-
 def config_from_args(config_cls, args: argparse.Namespace, **overrides):
-    """The config ``config_cls`` from the values ``add_config_arguments`` parsed into ``args`` (plus ``overrides``)."""
+    """The config ``config_cls`` from the values ``add_config_arguments`` parsed into ``args`` (plus
+    ``overrides``), checked by ``validate``."""
     prefix = config_prefix(config_cls)
-    given = vars(args)
-    values = {f.name: given[_dest(prefix, f.name)] for f in dataclasses.fields(config_cls)
-              if _dest(prefix, f.name) in given}
+    values_in = vars(args)
+    values = {f.name: values_in[_dest(prefix, f.name)] for f in dataclasses.fields(config_cls)
+              if _dest(prefix, f.name) in values_in}
     values.update(overrides)
-    return config_cls(**values)
+    cfg = config_cls(**values)
+    validate(cfg)
+    return cfg
+
+
+# --- presets and settings files -------------------------------------------------------------------------------
+
+
+def apply_preset(args: argparse.Namespace, values: typing.Mapping[str, object]) -> list[str]:
+    """Set each ``dest -> value`` of a preset that the user did not give (on the command line or in a settings
+    file); dests the command does not have are skipped. Returns the dests set."""
+    done = []
+    user = given(args)
+    for dest, value in values.items():
+        if dest in user or not hasattr(args, dest):
+            continue
+        setattr(args, dest, value)
+        done.append(dest)
+    return done
+
+
+def _file_value(action: argparse.Action, value, where: str):
+    """A settings file's ``value`` for ``action``, parsed and checked like the same text on the command line."""
+    from .errors import BadArgumentError
+
+    if isinstance(action, (argparse.BooleanOptionalAction, argparse._StoreTrueAction, argparse._StoreFalseAction)):
+        if not isinstance(value, bool):
+            raise BadArgumentError(f"{where}: expected true or false, got {value!r}")
+        return value if not isinstance(action, argparse._StoreFalseAction) else not value
+    if isinstance(value, (dict, bool)) or (isinstance(value, list) and not getattr(action.type, "sep", False)
+                                           and action.type is not _parse_tuple and action.nargs is None):
+        raise BadArgumentError(f"{where}: expected a {'number' if isinstance(action.type, Ranged) else 'value'}, "
+                               f"got {value!r}")
+    text = ",".join(str(v) for v in value) if isinstance(value, list) else str(value)
+    try:
+        parsed = action.type(text) if callable(action.type) else text
+    except (argparse.ArgumentTypeError, ValueError, TypeError) as exc:
+        raise BadArgumentError(f"{where}: {exc}") from None
+    if action.choices is not None and parsed not in action.choices:
+        raise BadArgumentError(f"{where}: expected one of {', '.join(map(str, action.choices))}, got {value!r}")
+    return parsed
+
+
+def apply_settings_file(parser: argparse.ArgumentParser, args: argparse.Namespace, path) -> list[str]:
+    """Read a TOML settings file into ``args``: top-level keys are plain flag names (``quality = "preview"``,
+    ``max_size = 800``), a table per stage prefix holds that stage's settings (``[mvs]`` ``max_size = 800``,
+    ``[fusion]`` ``voxel_size = 0.002``). Flags given on the command line win. Every key is checked like its
+    flag; an unknown key is an error. Returns the dests set."""
+    import tomllib
+    from pathlib import Path
+
+    from .errors import BadArgumentError, InputDataError
+
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputDataError(f"--config {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputDataError(f"--config {path}: cannot read it ({exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise BadArgumentError(f"--config {path}: not valid TOML ({exc})") from None
+    items = []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            items += [(f"--{key}.{k.replace('_', '-')}", f"[{key}] {k}", v) for k, v in value.items()]
+        else:
+            items.append((f"--{key.replace('_', '-')}", key, value))
+    user = given(args)
+    done = []
+    for option, name, value in items:
+        action = parser._option_string_actions.get(option)
+        if action is None or action.dest in (argparse.SUPPRESS, "help") or option in ("--config", "--help-all"):
+            raise BadArgumentError(f"--config {path}: {name}: no such setting for '{parser.prog}' "
+                                   f"(see {parser.prog} --help-all)")
+        parsed = _file_value(action, value, f"--config {path}: {name}")
+        if action.dest in user:
+            continue  # the command line wins
+        setattr(args, action.dest, parsed)
+        done.append(action.dest)
+    if done:
+        setattr(args, "_given", user | set(done))  # a preset does not override the file either
+    return done
 
 
 # --- commands ---------------------------------------------------------------------------------------------

@@ -24,10 +24,10 @@ log = logging.getLogger("photorecon")
 class DemoConfig:
     """Settings of ``photorecon demo``."""
 
-    scene: str = field(default="blob", metadata={"help": "built-in scene (blob, knot, room), or 'bunny': the article's experiment (the Stanford bunny from a ring of cameras, meshed three ways)"})
-    views: int = field(default=30, metadata={"help": "number of views"})
-    width: int = field(default=512, metadata={"help": "image width"})
-    height: int = field(default=384, metadata={"help": "image height"})
+    scene: str = field(default="blob", metadata={"help": "built-in scene (blob, knot, room), or 'bunny': the Stanford bunny from a ring of cameras, meshed three ways", "metavar": "NAME"})
+    views: int = field(default=30, metadata={"help": "number of views", "range": (2, 10_000)})
+    width: int = field(default=512, metadata={"help": "image width, pixels", "range": (64, 8192)})
+    height: int = field(default=384, metadata={"help": "image height, pixels", "range": (64, 8192)})
 
 
 # what the demos write in their folder (--overwrite never replaces a file of these names photorecon did not write)

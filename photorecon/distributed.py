@@ -35,8 +35,8 @@ log = logging.getLogger("photorecon")
 class ClusterConfig:
     """Where the per-view and per-chunk tasks run (``--cluster``)."""
 
-    cluster: str | None = field(default=None, metadata={"help": "run the depth and fusion tasks on Dask: 'local:N' = N worker processes on this machine (cores split between them), 'tcp://HOST:PORT' = an existing 'dask scheduler' whose workers share the output folder; default: in this process"})
-    retries: int = field(default=3, metadata={"help": "with --cluster: times Dask retries a task that failed or whose worker died"})
+    cluster: str | None = field(default=None, metadata={"help": "run the depth and fusion tasks on Dask: local:N (N local workers) or tcp://HOST:PORT (a scheduler; default: in this process)", "metavar": "ADDRESS"})
+    retries: int = field(default=3, metadata={"help": "with --cluster: times Dask retries a task that failed or whose worker died", "range": (0, 100)})
 
 
 def parse_cluster(spec: str) -> tuple[str, int | str]:

@@ -1,6 +1,11 @@
 """Typed exceptions. Library code raises these; only the CLI turns them into one-line messages and exit codes.
 
 Every message says what was expected, what was found, and (where it helps) what to do.
+
+Exit codes of ``photorecon``: 0 done; 1 other photorecon error; 2 bad argument or value (also every
+command-line parse error); 3 input data; 4 no images; 5 SfM; 6 no depth; 7 empty mesh; 8 output location;
+9 texture; 10 an unexpected failure (a bug: ``-v`` shows the traceback); 130 interrupted (Ctrl-C, SIGINT);
+143 terminated (SIGTERM). An interrupted run keeps no incomplete output and resumes when run again.
 """
 from __future__ import annotations
 
@@ -80,3 +85,10 @@ class TextureError(PhotoreconError):
     """Texturing is impossible: no view sees the mesh, or the atlas does not fit in memory or in its size."""
 
     exit_code = 9
+
+
+class InternalError(PhotoreconError):
+    """An unexpected failure inside photorecon (a bug): the CLI says its type and message in one line; ``-v``
+    shows the traceback."""
+
+    exit_code = 10

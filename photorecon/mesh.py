@@ -24,16 +24,16 @@ MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 class CleanConfig:
     """Settings of the cleaning stage."""
 
-    min_component: float | None = field(default=None, metadata={"help": "a component with less area than this fraction of the largest is small; small components far from the main surface are dropped (default: 0.05; off for grid meshes, whose per-view patches are disconnected by construction)"})
-    floater_distance: float = field(default=0.05, metadata={"help": "a small component farther than this from the main surface is a floater and dropped; in units of the scene size (the main surface's extent, or the median camera distance when smaller); nearer small components are kept as details"})
-    min_detail: float = field(default=0.002, metadata={"help": "components with less area than this fraction of the largest are dropped wherever they are (debris)"})
-    fill_holes: float = field(default=0.0, metadata={"help": "fill holes up to this radius (scene units; 0 = the --fill-holes-voxels default)"})
-    fill_holes_voxels: float = field(default=15.0, metadata={"help": "TSDF meshes: fill holes up to this radius in voxels (0 = off; measured on the walnuts: 66%% fewer boundary edges, same F-score)"})
-    target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)"})
-    cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
-    crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
-    object: bool = field(default=False, metadata={"help": "object capture (an object standing on a table or turntable): find the support plane (all cameras on one side of it, the point the cameras look at on their side, a large flat part of the surface around under that point) and remove it and everything below it, keeping the object alone; one line reports what was removed (default off: a scene's ground stays)"})
-    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = the support's own thickness as fused: 1.25 x how far its flat surface reaches below the plane (99th percentile), at least 2 TSDF voxels)"})
+    min_component: float | None = field(default=None, metadata={"help": "components below this fraction of the largest's area are dropped when far from it (default: 0.05; grid: off)", "range": (0.0, 1.0)})
+    floater_distance: float = field(default=0.05, metadata={"help": "a small component farther than this from the main surface is a floater and dropped; fraction of the scene size", "range": (0.0, 100.0)})
+    min_detail: float = field(default=0.002, metadata={"help": "components with less area than this fraction of the largest are dropped wherever they are (debris)", "range": (0.0, 1.0)})
+    fill_holes: float = field(default=0.0, metadata={"help": "fill holes up to this radius, scene units (0 = the --fill-holes-voxels default)", "range": (0.0, None)})
+    fill_holes_voxels: float = field(default=15.0, metadata={"help": "TSDF meshes: fill holes up to this radius, voxels (0 = off)", "range": (0.0, 100_000.0)})
+    target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)", "range": (0, 2_000_000_000)})
+    cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
+    crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units", "range": (None, None), "length": 6, "box": True, "metavar": "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"})
+    object: bool = field(default=False, metadata={"help": "object capture (on a table or turntable): find the support plane under the point the cameras look at and remove it and everything below it"})
+    object_cut: float = field(default=0.0, metadata={"help": "--object: remove up to this height above the support plane, scene units (0 = the support's fused thickness)", "range": (0.0, None)})
 
 
 def to_open3d(mesh: trimesh.Trimesh):

@@ -57,13 +57,13 @@ log = logging.getLogger("photorecon")
 class ReconstructConfig:
     """Top-level settings of ``photorecon reconstruct``."""
 
-    poses: str | None = field(default=None, metadata={"help": "use these cameras (COLMAP model folder or transforms.json) instead of SfM"})
-    depth: str = field(default="mvs", metadata={"help": "depth source: 'mvs' (default), or a folder of NAME.npy depth maps (e.g. a synth dataset's depth/)"})
-    depth_model: str | None = field(default=None, metadata={"help": "monocular depth from this ONNX model (MiDaS-style), aligned to the SfM points"})
-    depth_preset: str | None = field(default=None, metadata={"help": "preset for --depth-model (see 'photorecon depth --help')"})
-    formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write (ply, obj, glb)"})
-    masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or COLMAP's NAME.EXT.png (e.g. IMG_1.jpg.png) at the image's size, 0 = ignore the pixel (no features, depth or surface there); undistorted into OUT/masks. Without it the images' alpha channel is the mask"})
-    texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos: OUT/textured/mesh.obj (+ .mtl, texture.png) and mesh.glb"})
+    poses: str | None = field(default=None, metadata={"help": "use these cameras (COLMAP model folder or transforms.json) instead of SfM", "metavar": "PATH"})
+    depth: str = field(default="mvs", metadata={"help": "depth source: 'mvs', or a folder of NAME.npy depth maps (e.g. a synth dataset's depth/)", "metavar": "SOURCE"})
+    depth_model: str | None = field(default=None, metadata={"help": "monocular depth from this ONNX model (MiDaS-style), aligned to the SfM points", "metavar": "FILE.onnx"})
+    depth_preset: str | None = field(default=None, metadata={"help": "preset for --depth-model (see 'photorecon depth --help')", "metavar": "NAME"})
+    formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write, comma-separated: ply, obj, glb", "metavar": "LIST"})
+    masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or NAME.EXT.png at the image's size, 0 = ignore the pixel (default: the images' alpha channel)", "metavar": "DIR"})
+    texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos (OUT/textured/)"})
 
 
 @dataclass

@@ -45,8 +45,8 @@ UNITS = ("metre", "arbitrary")
 class ScaleConfig:
     """Settings of the metric-scale step (after the poses; ``photorecon sfm`` and ``reconstruct``)."""
 
-    marker_size: float | None = field(default=None, metadata={"help": "edge length in metres of the ArUco markers in the scene (the black square's outer edge): the model is scaled so that they measure it (units: metre)"})
-    marker_dict: str = field(default="4x4_50", metadata={"help": "ArUco dictionary of the markers: 4x4_50, 5x5_100, 6x6_250, 7x7_1000, original, apriltag_36h11, ... (OpenCV's DICT_* names, case-insensitive)"})
+    marker_size: float | None = field(default=None, metadata={"help": "edge length of the ArUco markers in the scene (the black square's outer edge), metres: the model is scaled so that they measure it", "range": (0.0, 1e6), "exclusive_min": True})
+    marker_dict: str = field(default="4x4_50", metadata={"help": "ArUco dictionary of the markers: 4x4_50, 5x5_100, 6x6_250, 7x7_1000, original, apriltag_36h11, ... (OpenCV's DICT_* names, case-insensitive)", "metavar": "NAME"})
     gps: bool = field(default=True, metadata={"help": "without --marker-size: align the model to east-north-up metres around the first photo with the photos' EXIF GPS (>= 3 photos, not in a line)"})
 
     def __post_init__(self):

@@ -46,20 +46,20 @@ class SynthConfig:
     """Settings of ``photorecon synth``."""
 
     scene: Literal["blob", "knot", "room"] = field(default="blob", metadata={"help": "built-in procedural scene"})
-    mesh: str | None = field(default=None, metadata={"help": "mesh file (OBJ, PLY, GLB, STL, OFF) instead of --scene"})
+    mesh: str | None = field(default=None, metadata={"help": "mesh file (OBJ, PLY, GLB, STL, OFF) instead of --scene", "metavar": "FILE"})
     rig: Literal["sphere", "ring", "hemisphere"] = field(default="sphere", metadata={"help": "camera placement"})
-    views: int = field(default=40, metadata={"help": "number of views"})
-    width: int = field(default=640, metadata={"help": "image width in pixels"})
-    height: int = field(default=480, metadata={"help": "image height in pixels"})
-    fov: float = field(default=50.0, metadata={"help": "horizontal field of view, degrees"})
-    radius: float = field(default=3.0, metadata={"help": "camera distance from the scene centre (scene units)"})
-    elevation: float = field(default=20.0, metadata={"help": "ring rig: elevation in degrees"})
+    views: int = field(default=40, metadata={"help": "number of views", "range": (1, 100_000)})
+    width: int = field(default=640, metadata={"help": "image width, pixels", "range": (16, 16384)})
+    height: int = field(default=480, metadata={"help": "image height, pixels", "range": (16, 16384)})
+    fov: float = field(default=50.0, metadata={"help": "horizontal field of view, degrees", "range": (0.0, 179.0), "exclusive_min": True})
+    radius: float = field(default=3.0, metadata={"help": "camera distance from the scene centre, scene units", "range": (0.0, 1e9), "exclusive_min": True})
+    elevation: float = field(default=20.0, metadata={"help": "ring rig: elevation, degrees", "range": (-90.0, 90.0)})
     up: Literal["z", "y"] = field(default="z", metadata={"help": "world up axis of the rig (y for y-up meshes)"})
-    jitter_deg: float = field(default=0.0, metadata={"help": "random rotation added to each camera, degrees"})
-    jitter_pos: float = field(default=0.0, metadata={"help": "random camera offset, fraction of the radius"})
+    jitter_deg: float = field(default=0.0, metadata={"help": "random rotation added to each camera, degrees", "range": (0.0, 180.0)})
+    jitter_pos: float = field(default=0.0, metadata={"help": "random camera offset, fraction of the radius", "range": (0.0, 10.0)})
     background: Literal["color", "texture"] = field(default="color", metadata={"help": "plain or textured backdrop"})
-    points: int = field(default=4000, metadata={"help": "surface points sampled for the sparse COLMAP model"})
-    seed: int = field(default=0, metadata={"help": "random seed (texture, jitter, sparse points)"})
+    points: int = field(default=4000, metadata={"help": "surface points sampled for the sparse COLMAP model", "range": (0, 100_000_000)})
+    seed: int = field(default=0, metadata={"help": "random seed (texture, jitter, sparse points)", "range": (0, 2**31 - 1)})
 
 
 # --- scenes ------------------------------------------------------------------------------------------------

@@ -57,14 +57,14 @@ TEXTURED_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.glb")
 class TextureConfig:
     """Settings of the texturing stage (``reconstruct --texture``, ``photorecon texture``)."""
 
-    atlas_size: int = field(default=4096, metadata={"help": "texture atlas width and height in texels"})
-    texture_faces: int = field(default=0, metadata={"help": "simplify the mesh to about this many faces before texturing (0 = keep it); a textured mesh needs far fewer faces than a vertex-coloured one"})
-    padding: int = field(default=2, metadata={"help": "texels of photo kept around every chart (against seams under bilinear filtering and mip-mapping)"})
-    min_cos: float = field(default=0.1, metadata={"help": "a view sees a face only if |cos(normal, ray)| >= this"})
-    smoothness: float = field(default=0.4, metadata={"help": "label smoothing: cost of a neighbour with another view, relative to a face's best-to-worst quality range"})
-    smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)"})
+    atlas_size: int = field(default=4096, metadata={"help": "texture atlas width and height, texels", "range": (256, 65536)})
+    texture_faces: int = field(default=0, metadata={"help": "simplify the mesh to about this many faces before texturing (0 = keep it)", "range": (4, 2_000_000_000), "also": (0,)})
+    padding: int = field(default=2, metadata={"help": "texels of photo kept around every chart (against seams under filtering and mip-mapping)", "range": (0, 64)})
+    min_cos: float = field(default=0.1, metadata={"help": "a view sees a face only if |cos(normal, ray)| >= this", "range": (0.0, 0.999)})
+    smoothness: float = field(default=0.4, metadata={"help": "label smoothing: cost of a neighbour with another view, relative to a face's best-to-worst quality range", "range": (0.0, 1000.0)})
+    smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)", "range": (0, 10_000)})
     exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
-    consistency: float = field(default=20.0, metadata={"help": "photo-consistency: a view whose colour of a face differs from the median over the face's views by more than this (RGB distance, 0-255) is not used for it (0 = off)"})
+    consistency: float = field(default=20.0, metadata={"help": "a view whose colour of a face is farther than this RGB distance (0-255) from the median is not used for it (0 = off)", "range": (0.0, 1000.0)})
 
 
 @dataclass

@@ -37,20 +37,19 @@ log = logging.getLogger("photorecon")
 class TriangulateConfig:
     """Settings of the triangulation of given cameras."""
 
-    max_image_size: int = field(default=1600, metadata={"help": "SIFT works on images downscaled to this size"})
-    max_features: int = field(default=8192, metadata={"help": "SIFT features per image"})
-    affine_sift: bool = field(default=False, metadata={"help": "estimate affine feature shapes (wide baselines; measured on walnut 1: 323 -> 524 points, 27 -> 51 s)"})
+    max_image_size: int = field(default=1600, metadata={"help": "feature extraction works on images downscaled to this longest side, pixels", "range": (64, 65536)})
+    max_features: int = field(default=8192, metadata={"help": "most SIFT features per image", "range": (16, 1_000_000)})
+    affine_sift: bool = field(default=False, metadata={"help": "estimate affine feature shapes (wide baselines; more points, slower)"})
     matcher: Literal["auto", "exhaustive", "overlap"] = field(default="auto", metadata={
         "help": "auto: exhaustive up to exhaustive_max images, else only pairs whose frusta overlap"})
-    exhaustive_max: int = field(default=40, metadata={"help": "largest image count matched exhaustively by auto"})
-    overlap_neighbors: int = field(default=20, metadata={"help": "overlap matcher: partners per image (most overlap first)"})
-    max_view_angle_deg: float = field(default=90.0, metadata={"help": "overlap matcher: skip pairs whose optical axes differ by more"})
+    exhaustive_max: int = field(default=40, metadata={"help": "largest image count matched exhaustively by auto", "range": (0, 1_000_000)})
+    overlap_neighbors: int = field(default=20, metadata={"help": "overlap matcher: partners per image (most overlap first)", "range": (1, 100_000)})
+    max_view_angle_deg: float = field(default=90.0, metadata={"help": "overlap matcher: skip pairs whose optical axes differ by more, degrees", "range": (0.0, 180.0)})
     contrast: Literal["clahe", "stretch", "none"] = field(default="clahe", metadata={
-        "help": "contrast normalisation of the images SIFT sees (dark or low-contrast photos give few features "
-                "otherwise; measured on the walnuts: 37-126 -> 1200-4000 features per image, 0 -> 323 points); point colours come from the originals"})
+        "help": "contrast normalisation of the images feature extraction sees (dark or low-contrast photos give few features otherwise); point colours come from the originals"})
     use_alpha_mask: bool = field(default=True, metadata={"help": "no features where an image's alpha channel is 0"})
-    min_points: int = field(default=50, metadata={"help": "fewer triangulated points than this: warn and return the model unchanged"})
-    threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)"})
+    min_points: int = field(default=50, metadata={"help": "fewer triangulated points than this: warn and return the model unchanged", "range": (0, 100_000_000)})
+    threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)", "range": (1, 4096), "also": (-1,)})
 
 
 @dataclass

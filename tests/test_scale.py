@@ -270,8 +270,9 @@ def test_cli_marker_size_zero_exits_2(tmp_path, capsys):
 
     (tmp_path / "photos").mkdir()
     for cmd in ("sfm", "reconstruct"):
-        rc = main([cmd, str(tmp_path / "photos"), "-o", str(tmp_path / f"out_{cmd}"), "--marker-size", "0"])
-        assert rc == 2
+        with pytest.raises(SystemExit) as e:  # refused when the arguments are parsed
+            main([cmd, str(tmp_path / "photos"), "-o", str(tmp_path / f"out_{cmd}"), "--marker-size", "0"])
+        assert e.value.code == 2
         assert "--marker-size" in capsys.readouterr().err
         assert not (tmp_path / f"out_{cmd}").exists()
 

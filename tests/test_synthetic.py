@@ -154,7 +154,9 @@ def test_cli_synth_and_errors(tmp_path):
     assert main(["-q", "synth", "-o", str(tmp_path / "ok"), "--views", "2", "--width", "48", "--height", "32",
                  "--scene", "knot", "--rig", "ring"]) == 0
     assert len(list((tmp_path / "ok" / "images").glob("*.png"))) == 2
-    assert main(["-q", "synth", "-o", str(tmp_path / "bad"), "--views", "0"]) == 2
+    with pytest.raises(SystemExit) as e:  # refused when the arguments are parsed
+        main(["-q", "synth", "-o", str(tmp_path / "bad"), "--views", "0"])
+    assert e.value.code == 2
     (tmp_path / "foreign").mkdir()
     (tmp_path / "foreign" / "notes.txt").write_text("mine")
     assert main(["-q", "synth", "-o", str(tmp_path / "foreign"), "--views", "1"]) == 8

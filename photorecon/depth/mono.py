@@ -50,17 +50,17 @@ PRESETS: dict[str, dict] = {
 class MonoConfig:
     """Settings of the monocular depth stage (``photorecon depth``)."""
 
-    preset: str | None = field(default=None, metadata={"help": f"model preset: {', '.join(PRESETS)} (default: midas_small)"})
-    size: int | None = field(default=None, metadata={"help": "input size override (dynamic models: short side)"})
-    multiple: int | None = field(default=None, metadata={"help": "dynamic input sizes are rounded to this multiple"})
-    mean: tuple[float, ...] | None = field(default=None, metadata={"help": "normalisation mean r,g,b override"})
-    std: tuple[float, ...] | None = field(default=None, metadata={"help": "normalisation std r,g,b override"})
+    preset: str | None = field(default=None, metadata={"help": f"model preset: {', '.join(PRESETS)} (default: midas_small)", "metavar": "NAME"})
+    size: int | None = field(default=None, metadata={"help": "input size override, pixels (dynamic models: short side)", "range": (16, 16384)})
+    multiple: int | None = field(default=None, metadata={"help": "dynamic input sizes are rounded to this multiple, pixels", "range": (1, 1024)})
+    mean: tuple[float, ...] | None = field(default=None, metadata={"help": "normalisation mean r,g,b override", "range": (None, None), "length": 3, "metavar": "R,G,B"})
+    std: tuple[float, ...] | None = field(default=None, metadata={"help": "normalisation std r,g,b override", "range": (0.0, None), "exclusive_min": True, "length": 3, "metavar": "R,G,B"})
     output: Literal["disparity", "depth", "metric"] = field(default="disparity", metadata={"help": "what the model predicts: relative inverse depth, relative depth, or metric depth"})
     alignment: Literal["per-image", "global"] = field(default="per-image", metadata={"help": "fit scale/shift per image or one shared fit"})
-    min_points: int = field(default=20, metadata={"help": "views with fewer SfM points are excluded"})
-    max_residual: float = field(default=0.05, metadata={"help": "views whose median relative residual exceeds this are excluded"})
-    threads: int = field(default=2, metadata={"help": "onnxruntime threads"})
-    batch: int = field(default=1, metadata={"help": "images per inference call (when the model allows a batch)"})
+    min_points: int = field(default=20, metadata={"help": "views with fewer SfM points are excluded", "range": (2, 100_000_000)})
+    max_residual: float = field(default=0.05, metadata={"help": "views whose median relative residual exceeds this are excluded", "range": (0.0, 100.0), "exclusive_min": True})
+    threads: int = field(default=2, metadata={"help": "onnxruntime threads", "range": (1, 4096)})
+    batch: int = field(default=1, metadata={"help": "images per inference call (when the model allows a batch)", "range": (1, 4096)})
 
     def resolved(self) -> dict:
         name = self.preset or "midas_small"
