@@ -72,7 +72,7 @@ class SfMConfig:
     spatial_ignore_z: bool = field(default=True, metadata={"help": "spatial matching: ignore GPS altitude (consumer GPS altitude is poor)"})
     mapper: Literal["auto", "incremental", "global"] = field(default="auto", metadata={"help": "COLMAP incremental or global (GLOMAP) mapping; auto = global from --global-min images on"})
     global_min: int = field(default=GLOBAL_MIN, metadata={"help": "smallest image count mapped globally by --mapper auto"})
-    min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of images register"})
+    min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of the images (0 to 1) register"})
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)"})
     seed: int = field(default=0, metadata={"help": "random seed for mapping"})
     video_every: int = field(default=10, metadata={"help": "when IMAGES is a video file: take every k-th frame"})
@@ -153,10 +153,12 @@ def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
 def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path) -> int:
     """COLMAP's mask layout in ``dst``: ``NAME.EXT.png`` (uint8, 0 = no features there, 255 = use) for each of
     ``images`` ((name, width, height) in ``images_dir``) that has a mask in the user's folder ``masks``
-    (NAME.EXT.png or NAME.png), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
+    (NAME.EXT.png or NAME.png), else an alpha channel (RGBA, grey + alpha). When any image has one, every other
+    image gets an all-255 mask (used whole): COLMAP skips an image without a mask file once it is given a mask
+    folder. Returns how many masks came from the user's folder or alpha channels."""
     from .io.images import mask_file, read_alpha, read_mask, write_image
 
-    n = 0
+    n, unmasked = 0, []
     for name, w, h in images:
         p = mask_file(masks, name) if masks else None
         if p is not None:
@@ -164,12 +166,16 @@ def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, mas
         else:
             alpha = read_alpha(images_dir / name)
             if alpha is None:
+                unmasked.append((name, w, h))
                 continue
             if alpha.shape != (h, w):
                 raise InputDataError(f"{images_dir / name}: alpha is {alpha.shape[1]}x{alpha.shape[0]}, image is {w}x{h}")
             m = alpha > 0
         write_image(dst / f"{name}.png", np.where(m, 255, 0).astype(np.uint8))
         n += 1
+    if n:
+        for name, w, h in unmasked:
+            write_image(dst / f"{name}.png", np.full((h, w), 255, np.uint8))
     return n
 
 
@@ -501,6 +507,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     pycolmap = _pycolmap()
     cfg = cfg or SfMConfig()
+    if not 0 <= cfg.min_registered <= 1:
+        raise BadArgumentError(f"--min-registered: expected a fraction of the images, 0 to 1, got {cfg.min_registered:g}")
     _quiet(pycolmap)
     src, out = Path(images_dir), Path(out)
     masks = Path(masks) if masks else None

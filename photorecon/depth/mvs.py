@@ -60,7 +60,8 @@ class MVSConfig:
     min_texture: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation (grey 0..1) is below this: matching has no evidence there; with --min-confidence 0, 0.01 keeps a plain background out (synthetic room without masks: mesh F@1%% 0.83 -> 0.93) but removes most of a dark, low-contrast object (walnut 2016_10_24: F@1mm 0.977 -> 0.539), so it is off by default; not applied with --planar-prior, which fills such pixels (0 = off)"})
     texture_rel: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the reference window's grey standard deviation is below this fraction of the image's median window (planar.relative_texture: measured against the photo's own contrast, so a dark, low-contrast object keeps its depth where --min-texture removes it), and the pixels kept need only --textured-min-confidence: the multi-view filter decides. 0.2 meets the synthetic knot's coverage target (true poses, within 1%% / coverage 0.972 / 0.863 -> 0.959 / 0.906) but costs the walnuts 0.5-2.3 points of F@1mm (800 px, --object: 0.981 -> 0.976, 0.914 -> 0.891), so it is off by default; not applied with --planar-prior (0 = off)"})
     textured_min_confidence: float = field(default=0.0, metadata={"help": "with --texture-rel: the confidence threshold (in place of --min-confidence) for the pixels it keeps"})
-    min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree (0 = off)"})
+    min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree, at most the views checked (0 = off)"})
+    pair_reproj_px: float = field(default=1.0, metadata={"help": "geometric filter of a view checked against one other view (a stereo pair): the left-right check's max forward-backward reprojection error, pixels (no plane test; 0 = as --reproj-px)"})
     filter_sources: int = field(default=16, metadata={"help": "geometric filter: check each depth against this many views (the matching sources, then the next best ranked; 0 = the matching sources only): a surface that some matching sources cannot see (self-occlusion) is confirmed by the views that do (synthetic knot, true poses: coverage 0.842 -> 0.859; 0.903 with --min-confidence 0 --min-texture 0.01)"})
     consistency_confidence: bool = field(default=True, metadata={"help": "geometric filter: a depth that k views confirm gets at least confidence 1 - 1/k (its TSDF weight): the matching cost alone underrates depths whose sources are partly occluded"})
     reproj_px: float = field(default=2.0, metadata={"help": "geometric filter: max reprojection error, pixels (ACMM: 2)"})
@@ -127,7 +128,8 @@ def _working_view(view: View, max_size: int) -> View:
 
 def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
     """Rank the other views for ``ref``: shared sparse points weighted by triangulation angle; without
-    points, by viewing-direction similarity and distance."""
+    points, by viewing-direction similarity and distance. When every view sharing points with ``ref`` sees them
+    at less than ``min_angle_deg`` (a narrow stereo pair), those views are its sources."""
     c_ref = ref.center
     scores = []
     ref_pts = model.points_seen_by(ref.name) if len(model.points) else np.zeros((0, 3))
@@ -159,7 +161,10 @@ def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
                 continue
             scores.append((float(np.exp(-((ang - 15.0) ** 2) / (2 * 10.0 ** 2))), v))
     scores.sort(key=lambda s: -s[0])
-    return [v for s, v in scores[: cfg.n_sources] if s > 0]
+    chosen = [v for s, v in scores[: cfg.n_sources] if s > 0]
+    if not chosen and ref_ids:  # only views sharing points at a narrow angle (a short stereo baseline): those
+        chosen = [v for _, v in scores[: cfg.n_sources]]
+    return chosen
 
 
 # Depth-range factors on the sparse points' (1st, 99th) percentiles, per method: PatchMatch searches depth
@@ -380,6 +385,16 @@ def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], 
                              float(cfg.rel_depth), cnt, err_rows, n_rows, normal, snormal,
                              float(cfg.plane_reproj_px) if plane else 0.0, cos_max)
     return cnt, float(err_rows.sum()), int(n_rows.sum())
+
+
+def _filter_config(cfg: MVSConfig, n_views: int) -> MVSConfig:
+    """The consistency filter's settings for a view checked against ``n_views`` others: against one (a stereo
+    pair) it is a left-right check, each depth re-projected into the other view and back within
+    ``pair_reproj_px`` pixels and ``rel_depth``, without the plane test (which admits ``plane_reproj_px``): what
+    fails it is occluded in the other view, or a wrong match."""
+    if n_views != 1 or cfg.pair_reproj_px <= 0:
+        return cfg
+    return dataclasses.replace(cfg, reproj_px=cfg.pair_reproj_px, plane_reproj_px=0.0)
 
 
 def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
@@ -613,8 +628,8 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         if cfg.min_consistent > 0:
             checked = dataclasses.replace(res, sources=_filter_sources(ctx, name))
             sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0, confidence=False) for s in checked.sources}
-            cnt, err_sum, err_n = consistency_count(checked, sources, cfg)
-            res.depth[cnt < cfg.min_consistent] = 0
+            cnt, err_sum, err_n = consistency_count(checked, sources, _filter_config(cfg, len(sources)))
+            res.depth[cnt < min(cfg.min_consistent, len(sources))] = 0  # no more confirming views than there are
             if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
                 res.confidence = np.maximum(res.confidence, 1.0 - 1.0 / np.maximum(cnt, 1)).astype(np.float32)
         d = res.depth
