@@ -103,6 +103,24 @@ MVS_PRESETS: dict[str, dict] = {
 }
 
 
+# PatchMatch on a view matched against one other view only (a stereo pair), where no third view outvotes a window
+# that straddles a depth edge: smaller, denser and sharper windows, unless set otherwise (synthetic rectified
+# pairs at 640x480, knot / room, depth within 1% on the co-visible pixels: 0.88 / 0.90 -> 0.94 / 0.95)
+PAIR_SETTINGS = {"pm_radius": 3, "pm_stride": 1, "pm_sigma_color": 0.05}
+
+
+def _pair_config(cfg: MVSConfig, plan: dict) -> MVSConfig:
+    """``cfg`` with ``PAIR_SETTINGS`` in place of the defaults when every view of the ``plan`` has one source."""
+    if cfg.method != "patchmatch" or not plan or any(len(p[1]) != 1 for p in plan.values()):
+        return cfg
+    defaults = MVSConfig()
+    changes = {k: v for k, v in PAIR_SETTINGS.items() if getattr(cfg, k) == getattr(defaults, k)}
+    if changes:
+        log.info("mvs: every view has one source view (a stereo pair): %s",
+                 ", ".join(f"{k} {v}" for k, v in changes.items()))
+    return dataclasses.replace(cfg, **changes)
+
+
 @dataclass
 class DepthResult:
     depth: np.ndarray  # (h, w) float32 at working resolution
@@ -761,6 +779,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
     if not views:
         raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    cfg = _pair_config(cfg, views)
     work = Path(work_dir) if work_dir else out / ".mvs_work"
     ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out,
                       _filter_plan(model, views, cfg))
