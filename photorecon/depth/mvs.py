@@ -16,11 +16,12 @@ For each reference view:
 4. **Filtering**: confidence threshold (and, optionally, textureless reference windows), then geometric
    consistency: each depth is re-projected into the depth maps of its source views and of the next best ranked
    views (``filter_sources`` in all: a surface hidden from some sources is confirmed by the views that see it)
-   and back; it is kept when at least ``min_consistent`` views agree within
+   and back; it is kept when at least ``min_consistent`` views (at most as many as it is checked against) agree within
    ``reproj_px`` pixels and ``rel_depth`` relative depth, or (PatchMatch's normals) on the surface: the two
    points within ``reproj_px`` pixel footprints of each other's tangent plane, up to ``plane_reproj_px`` pixels
    apart (``consistency_count``; surfaces seen at grazing angles). A depth that k views confirm gets at least
-   confidence 1 - 1/k (``consistency_confidence``), its weight in TSDF fusion.
+   confidence 1 - 1/k (``consistency_confidence``), its weight in TSDF fusion. A view checked against one other
+   view (a stereo pair) gets a left-right check instead: within ``pair_reproj_px`` pixels, no plane test.
 
 Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``depth/NAME.conf.npy``
 (float32 confidence in [0, 1]) and ``depth/NAME.png`` (preview).
