@@ -57,8 +57,7 @@ def test_sfm_registers_every_image_when_only_some_have_masks(ring16, tmp_path):
         if 0 < k <= len(names) // 2:
             shutil.copyfile(ring16 / "masks" / name, masks / name)
     out = tmp_path / "out"
-    # (--small-image-size 0: extraction at the photos' own size, as the masks are what is tested here)
-    assert main(["-q", "sfm", str(images), "-o", str(out), "--masks", str(masks), "--small-image-size", "0"]) == 0
+    assert main(["-q", "sfm", str(images), "-o", str(out), "--masks", str(masks)]) == 0
     report = json.loads((out / "colmap" / "sfm_report.json").read_text())
     assert len(report["registered"]) == len(names) and report["unregistered"] == []
     assert len(list((out / "colmap" / "masks").iterdir())) == len(names)
@@ -67,7 +66,8 @@ def test_sfm_registers_every_image_when_only_some_have_masks(ring16, tmp_path):
 @pytest.mark.slow
 def test_twelve_small_sphere_views_register(tmp_path):
     """12 views of the blob at 320x240 on the default sphere rig, 53-60 degrees apart: small photos are
-    upsampled for SIFT and mapping is retried with relaxed thresholds, so (nearly) all register, in place."""
+    mapped again with relaxed thresholds and, still leaving images out, given SIFT again on 2x upsampled copies
+    with guided matching: (nearly) all register, in place."""
     from photorecon.metrics import pose_metrics
     from photorecon.synthetic import SynthConfig, synthesize
 
