@@ -195,6 +195,10 @@ def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
         voxel = float(cfg.voxel_size)
         if not voxel > 0:
             raise BadArgumentError(f"voxel size: expected > 0, got {voxel}")
+        diag = scene_diagonal(frames, sparse_points)
+        if voxel > 0.5 * diag:  # a grid of one or two voxels across: no surface to extract
+            raise BadArgumentError(f"voxel size {voxel:.4g} is larger than the scene, which is about {diag:.3g} "
+                                   f"across; use a smaller --voxel-size (e.g. {diag / 300:.3g}: 300 voxels across)")
         n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
         if need > limit:
             raise BadArgumentError(f"voxel size {voxel:.4g} needs about {need / 2**30:.1f} GB for {n_blocks} voxel "

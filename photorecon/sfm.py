@@ -36,6 +36,7 @@ log = logging.getLogger("photorecon")
 
 
 def _pycolmap():
+    import cv2  # noqa: F401  (first: OpenCV loaded after pycolmap crashes in its PNG writer, two zlib builds)
     import pycolmap
 
     return pycolmap
@@ -60,6 +61,7 @@ class SfMConfig:
         default="SIMPLE_RADIAL", metadata={"help": "camera model to self-calibrate (given intrinsics use PINHOLE)"})
     max_image_size: int = field(default=1600, metadata={"help": "feature extraction works on images downscaled to this longest side, pixels", "range": (64, 65536)})
     max_features: int = field(default=8192, metadata={"help": "most SIFT features per image", "range": (16, 1_000_000)})
+    small_image_size: int = field(default=500, metadata={"help": "when images are left out: photos whose long side is below this many pixels get SIFT again on 2x upsampled copies, matched guided (0 = off)", "range": (0, 65536)})
     affine_sift: bool = field(default=True, metadata={"help": "estimate affine feature shapes: longer tracks across oblique views"})
     dsp_sift: bool = field(default=False, metadata={"help": "domain-size pooling SIFT descriptors (slower extraction, sometimes more accurate)"})
     matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair, file-name neighbours (videos), or nearest by GPS; auto: exhaustive up to --exhaustive-max images"})
@@ -106,9 +108,11 @@ def _given_intrinsics(cfg: SfMConfig, width: int, height: int) -> Intrinsics | N
     return None
 
 
-def camera_groups(images: list, cfg: SfMConfig) -> list[dict]:
-    """One COLMAP camera per image size (and EXIF focal prior): ``[{"model", "params", "images"}]`` with
-    ``params`` in COLMAP's convention ("" lets COLMAP guess) and ``images`` the file names sharing it."""
+def camera_groups(images: list, cfg: SfMConfig, upscale_small: bool = False) -> list[dict]:
+    """One COLMAP camera per image size (and EXIF focal prior): ``[{"model", "params", "images", "size",
+    "sift_upscale"}]`` with ``params`` in COLMAP's convention ("" lets COLMAP guess), ``images`` the file names
+    sharing it, ``size`` their [width, height] and ``sift_upscale`` the factor its images are upsampled by for
+    SIFT (with ``upscale_small``: 2 below ``cfg.small_image_size`` pixels, else 1)."""
     groups: dict[tuple, list] = {}
     for im in images:
         groups.setdefault((im.width, im.height, round(im.focal_prior_px or 0, 1)), []).append(im.name)
@@ -124,7 +128,9 @@ def camera_groups(images: list, cfg: SfMConfig) -> list[dict]:
             model, params = cfg.camera_model, []
             if f_prior:
                 params = colmap_from_intrinsics(Intrinsics(w, h, f_prior, f_prior, (w - 1) / 2, (h - 1) / 2, model=model))[3]
-        cameras.append({"model": model, "params": ",".join(repr(float(p)) for p in params), "images": names})
+        small = upscale_small and 0 < max(w, h) < cfg.small_image_size
+        cameras.append({"model": model, "params": ",".join(repr(float(p)) for p in params), "images": names,
+                        "size": [w, h], "sift_upscale": 2 if small else 1})
     return cameras
 
 
@@ -150,11 +156,13 @@ def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, mas
     """COLMAP's mask layout in ``dst``: ``NAME.EXT.png`` (uint8, 0 = no features there, 255 = use) for each of
     ``images`` ((name, width, height) in ``images_dir``) that has a mask in the user's folder ``masks``
     (NAME.EXT.png or NAME.png of the photo's name: ``photo_names`` maps a working name to it where they
-    differ), else an alpha channel (RGBA, grey + alpha). Returns how many were written."""
+    differ), else an alpha channel (RGBA, grey + alpha). When any image has one, every other image gets an
+    all-255 mask (used whole): COLMAP skips an image without a mask file once it is given a mask folder.
+    Returns how many masks came from the user's folder or alpha channels."""
     from .io.images import mask_file, read_alpha, read_mask, write_image
 
     photo_names = photo_names or {}
-    n = 0
+    n, unmasked = 0, []
     for name, w, h in images:
         p = mask_file(masks, photo_names.get(name, name)) if masks else None
         if p is not None:
@@ -162,36 +170,119 @@ def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, mas
         else:
             alpha = read_alpha(images_dir / name)
             if alpha is None:
+                unmasked.append((name, w, h))
                 continue
             if alpha.shape != (h, w):
                 raise InputDataError(f"{images_dir / name}: alpha is {alpha.shape[1]}x{alpha.shape[0]}, image is {w}x{h}")
             m = alpha > 0
         write_image(dst / f"{name}.png", np.where(m, 255, 0).astype(np.uint8))
         n += 1
+    if n:
+        for name, w, h in unmasked:
+            write_image(dst / f"{name}.png", np.full((h, w), 255, np.uint8))
     return n
+
+
+def _exif(path: Path) -> bytes | None:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            return im.info.get("exif")
+    except OSError:
+        return None
+
+
+def _upscaled_copies(images_dir: Path, mask_dir: Path | None, names: list[str], s: int, dst: Path) -> Path | None:
+    """``names`` of ``images_dir`` upsampled ``s`` times (bicubic; same file names) into ``dst/images``, and their
+    COLMAP-layout masks of ``mask_dir`` (nearest) into ``dst/masks``. Returns the mask folder, or None."""
+    import cv2
+
+    (dst / "images").mkdir()
+    masks = None
+    for name in names:
+        img = cv2.imread(str(images_dir / name), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputDataError(f"{images_dir / name}: cannot read the image")
+        h, w = img.shape[:2]
+        up = cv2.resize(img, (w * s, h * s), interpolation=cv2.INTER_CUBIC)
+        jpeg = Path(name).suffix.lower() in (".jpg", ".jpeg")
+        exif = _exif(images_dir / name) if jpeg and up.ndim == 3 and up.shape[2] == 3 and up.dtype == np.uint8 else None
+        if exif:  # COLMAP reads the GPS position (spatial matching) and focal length from it
+            from PIL import Image
+
+            Image.fromarray(cv2.cvtColor(up, cv2.COLOR_BGR2RGB)).save(dst / "images" / name, quality=100, exif=exif)
+        elif not cv2.imwrite(str(dst / "images" / name), up, [cv2.IMWRITE_JPEG_QUALITY, 100] if jpeg else []):
+            raise SfMError(f"{dst / 'images' / name}: could not write the upsampled copy for SIFT")
+        m = mask_dir / f"{name}.png" if mask_dir is not None else None
+        if m is not None and m.is_file():
+            masks = dst / "masks"
+            masks.mkdir(exist_ok=True)
+            mask = cv2.imread(str(m), cv2.IMREAD_GRAYSCALE)
+            cv2.imwrite(str(masks / f"{name}.png"), cv2.resize(mask, (w * s, h * s), interpolation=cv2.INTER_NEAREST))
+    return masks
+
+
+def _downscale_features(database: Path, names: list[str], s: int, width: int, height: int, params: str) -> None:
+    """Features found on ``s``-times upsampled copies back to the original images: keypoint positions and affine
+    shapes / ``s`` (COLMAP's pixel corner convention scales exactly), the camera back to ``width`` x ``height``
+    (its given ``params``, else COLMAP's guess rescaled)."""
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(database))
+    try:
+        cams = set()
+        for name in names:
+            im = db.read_image_with_name(name)
+            kp = db.read_keypoints(im.image_id).astype(np.float32)
+            db.update_keypoints(im.image_id, kp / np.float32(s))
+            cams.add(im.camera_id)
+        for cid in cams:
+            cam = db.read_camera(cid)
+            cam.rescale(width, height)
+            if params:
+                cam.params = [float(p) for p in params.split(",")]
+            db.update_camera(cam)
+    finally:
+        db.close()
 
 
 def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfig, mask_dir: Path | None = None) -> Path:
     """SIFT features of the images in ``cameras`` (see ``camera_groups``) into a new COLMAP database; none
-    where a mask in ``mask_dir`` (COLMAP's layout, ``write_colmap_masks``) is 0."""
+    where a mask in ``mask_dir`` (COLMAP's layout, ``write_colmap_masks``) is 0. A camera with ``sift_upscale``
+    s > 1 is extracted on s-times upsampled copies (``_upscaled_copies``), its keypoints then scaled back: small
+    photos give several times more features (12 views of the blob at 320x240: 0.8-1.3k -> 1.7-2.8k)."""
     pycolmap = _pycolmap()
     check_space(database, features_bytes(images_dir, [n for cam in cameras for n in cam["images"]], cfg))
-    with atomic_path(database) as tmp:
-        for cam in cameras:
+    with atomic_path(database) as tmp, tempfile.TemporaryDirectory(dir=database.parent, prefix=".upscaled") as up:
+        for i, cam in enumerate(cameras):
+            s = int(cam.get("sift_upscale", 1))
+            src, masks, params = images_dir, mask_dir, cam["params"]
+            if s > 1:
+                work = Path(up) / str(i)
+                work.mkdir()
+                masks = _upscaled_copies(images_dir, mask_dir, cam["images"], s, work)
+                src = work / "images"
+                if params:
+                    w, h = cam["size"]
+                    c = pycolmap.Camera(model=cam["model"], width=w, height=h, params=[float(p) for p in params.split(",")])
+                    c.rescale(w * s, h * s)
+                    params = ",".join(repr(float(p)) for p in c.params)
             reader = pycolmap.ImageReaderOptions()
             reader.camera_model = cam["model"]
-            reader.camera_params = cam["params"]
-            if mask_dir is not None:
-                reader.mask_path = str(mask_dir)
+            reader.camera_params = params
+            if masks is not None:
+                reader.mask_path = str(masks)
             ext = pycolmap.FeatureExtractionOptions()
-            ext.max_image_size = cfg.max_image_size
+            ext.max_image_size = cfg.max_image_size * s
             ext.sift.max_num_features = cfg.max_features
             ext.sift.estimate_affine_shape = cfg.affine_sift
             ext.sift.domain_size_pooling = cfg.dsp_sift
             ext.num_threads = cfg.threads
-            pycolmap.extract_features(str(tmp), str(images_dir), image_names=cam["images"],
+            pycolmap.extract_features(str(tmp), str(src), image_names=cam["images"],
                                       camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                       extraction_options=ext, device=pycolmap.Device.cpu)
+            if s > 1:
+                _downscale_features(tmp, cam["images"], s, *cam["size"], cam["params"])
     return database
 
 
@@ -228,17 +319,19 @@ def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
     return "global" if num_images >= cfg.global_min else "incremental"
 
 
-def match(features: Path, database: Path, matching: str, cfg: SfMConfig) -> Path:
+def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided: bool = False) -> Path:
     """Match the features of the ``features`` database into a copy of it, ``database``; ``matching``:
     exhaustive, sequential (file-name order; loops closed by matching keyframes, ``_match_keyframes``, since
     COLMAP's loop detection needs a vocabulary tree, a download) or spatial (nearest by the GPS position priors
-    COLMAP read from EXIF)."""
+    COLMAP read from EXIF). ``guided``: matches are searched again along the verified two-view geometry (small
+    photos: 12 views of the blob at 320x240, the weakest pair's inliers 16 -> 39)."""
     pycolmap = _pycolmap()
     check_space(database, 2 * features.stat().st_size + MB)  # a copy of the features, then the matches
     with atomic_path(database) as tmp:
         shutil.copyfile(features, tmp)
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.threads
+        mopt.guided_matching = guided
         if matching == "exhaustive":
             pycolmap.match_exhaustive(str(tmp), matching_options=mopt, device=pycolmap.Device.cpu)
         elif matching == "spatial":
@@ -285,13 +378,41 @@ def _match_keyframes(database: Path, every: int, mopt) -> int:
     return len(pairs)
 
 
+# Incremental mapping tried again with these thresholds, one set after the other, while a model leaves images
+# out: COLMAP's defaults ignore two-view tracks and want 100 inliers to start and 30 to register, too many for
+# a few small photos (12 views of the blob at 320x240, 53-60 degrees apart: 7 -> 12 registered with the first).
+RELAXED_MAPPING = (
+    {"triangulation.ignore_two_view_tracks": False, "mapper.init_min_num_inliers": 50,
+     "mapper.abs_pose_min_num_inliers": 15},
+    {"triangulation.ignore_two_view_tracks": False, "mapper.init_min_num_inliers": 30,
+     "mapper.init_min_tri_angle": 8.0, "mapper.abs_pose_min_num_inliers": 12, "mapper.abs_pose_min_inlier_ratio": 0.15},
+)
+
+
+def _incremental_options(pycolmap, cfg: SfMConfig, fixed_intrinsics: bool, relaxed: dict | None = None):
+    opt = pycolmap.IncrementalPipelineOptions()
+    opt.random_seed = cfg.seed
+    opt.num_threads = cfg.threads
+    if fixed_intrinsics:
+        opt.ba_refine_focal_length = False
+        opt.ba_refine_principal_point = False
+        opt.ba_refine_extra_params = False
+    for key, value in (relaxed or {}).items():
+        group, _, name = key.rpartition(".")
+        setattr(getattr(opt, group) if group else opt, name, value)
+    return opt
+
+
 # named after the step, as hloc does; this module does not use the builtin map
 def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool,  # noqa: A001
         mapper: str = "incremental") -> Path:
-    """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``."""
+    """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``.
+    Incremental mapping that leaves images out is tried again with relaxed thresholds (``RELAXED_MAPPING``);
+    the model with the most images is kept."""
     pycolmap = _pycolmap()
     pycolmap.set_random_seed(cfg.seed)
     check_space(model_dir, database.stat().st_size // 2 + MB)
+    n = sum(1 for _ in images_dir.iterdir())
     with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp:
         if mapper == "global":
             gopt = pycolmap.GlobalPipelineOptions()
@@ -301,21 +422,23 @@ def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed
                 gopt.mapper.bundle_adjustment.refine_focal_length = False
                 gopt.mapper.bundle_adjustment.refine_principal_point = False
                 gopt.mapper.bundle_adjustment.refine_extra_params = False
-            recs = pycolmap.global_mapping(str(database), str(images_dir), runs, gopt)
+            recs = list(pycolmap.global_mapping(str(database), str(images_dir), runs, gopt).values())
         else:
-            opt = pycolmap.IncrementalPipelineOptions()
-            opt.random_seed = cfg.seed
-            opt.num_threads = cfg.threads
-            if fixed_intrinsics:
-                opt.ba_refine_focal_length = False
-                opt.ba_refine_principal_point = False
-                opt.ba_refine_extra_params = False
-            recs = pycolmap.incremental_mapping(str(database), str(images_dir), runs, opt)
+            recs = []
+            for i, relaxed in enumerate((None,) + RELAXED_MAPPING):
+                if recs and max(r.num_reg_images() for r in recs) >= n:
+                    break
+                if relaxed:
+                    log.info("mapping: %d of %d images registered; again with relaxed thresholds (%d)",
+                             max((r.num_reg_images() for r in recs), default=0), n, i)
+                run_dir = Path(runs) / str(i)
+                run_dir.mkdir()
+                opt = _incremental_options(pycolmap, cfg, fixed_intrinsics, relaxed)
+                recs += list(pycolmap.incremental_mapping(str(database), str(images_dir), str(run_dir), opt).values())
         if not recs:
-            n = sum(1 for _ in images_dir.iterdir())
             raise SfMError(f"0 of {n} images registered: no two images could be matched into a model "
                            "(do the photos overlap? are they all identical?)")
-        max(recs.values(), key=lambda r: r.num_reg_images()).write_binary(str(tmp))
+        max(recs, key=lambda r: r.num_reg_images()).write_binary(str(tmp))
     return model_dir
 
 
@@ -443,6 +566,8 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     pycolmap = _pycolmap()
     cfg = cfg or SfMConfig()
+    if not 0 <= cfg.min_registered <= 1:
+        raise BadArgumentError(f"--min-registered: expected a fraction of the images, 0 to 1, got {cfg.min_registered:g}")
     _quiet(pycolmap)
     src, out = Path(images_dir), Path(out)
     masks = Path(masks) if masks else None
@@ -466,38 +591,69 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     cameras = camera_groups(images, cfg)
     sift = {k: getattr(cfg, k) for k in ("max_image_size", "max_features", "affine_sift", "dsp_sift")}
-    features = work / "features.db"
     work_masks = work / "masks"
-
-    def extraction() -> dict:
-        with atomic_dir(work_masks) as tmp:
-            n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp,
-                                   renamed)
-        extract(work / "images", features, cameras, cfg, work_masks if n else None)
-        return {"masks": n}
-
-    ext = stages.run("extraction", {"cameras": cameras, "sift": sift, "masks": masks and fingerprint(masks)},
-                     extraction, outputs=[features, work_masks], optional=[work_masks])
-
-    with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
-    matching = choose_matching(cfg, len(names), with_gps)
-    if matching == "spatial" and with_gps < len(names):
-        log.warning("--matching spatial: %d of %d photos carry no EXIF GPS and get no pairs",
-                    len(names) - with_gps, len(names))
-    database = work / "database.db"
-    pairing = {"sequential": {"overlap": cfg.sequential_overlap, "loops": cfg.sequential_loops},
-               "spatial": {"neighbors": cfg.spatial_neighbors, "max_distance": cfg.spatial_max_distance,
-                           "ignore_z": cfg.spatial_ignore_z}}.get(matching)
-    stages.run("matching", {"matching": matching, "pairing": pairing},
-               lambda: match(features, database, matching, cfg), outputs=[database])
-
     fixed = _given_intrinsics(cfg, images[0].width, images[0].height) is not None and not cfg.refine_intrinsics
-    model_dir = work / "sparse"
     mapper = choose_mapper(cfg, len(names))
-    stages.run("mapping", {"mapper": mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
-               lambda: map(database, work / "images", model_dir, cfg, fixed, mapper), outputs=[model_dir])
-    rec = pycolmap.Reconstruction(str(model_dir))
-    reg_names = sorted(rec.images[i].name for i in rec.reg_image_ids())
+
+    def sift_pass(cams: list[dict], suffix: str = "") -> tuple[Path, dict, str, int]:
+        """Extraction, matching and mapping of ``cams`` (stages and files named with ``suffix``): (the model's
+        folder, the extraction's record, the matching, photos with GPS)."""
+        features, database, model_dir = work / f"features{suffix}.db", work / f"database{suffix}.db", work / f"sparse{suffix}"
+
+        def extraction() -> dict:
+            with atomic_dir(work_masks) as tmp:
+                n = write_colmap_masks([(im.name, im.width, im.height) for im in images], work / "images", masks, tmp,
+                                       renamed)
+            extract(work / "images", features, cams, cfg, work_masks if n else None)
+            return {"masks": n}
+
+        ext = stages.run(f"extraction{suffix}", {"cameras": cams, "sift": sift, "masks": masks and fingerprint(masks)},
+                         extraction, outputs=[features, work_masks], optional=[work_masks])
+        with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
+        matching = choose_matching(cfg, len(names), with_gps)
+        if matching == "spatial" and with_gps < len(names) and not suffix:
+            log.warning("--matching spatial: %d of %d photos carry no EXIF GPS and get no pairs",
+                        len(names) - with_gps, len(names))
+        guided = any(c["sift_upscale"] > 1 for c in cams)  # the extraction's settings: a change re-runs matching
+        pairing = {"sequential": {"overlap": cfg.sequential_overlap, "loops": cfg.sequential_loops},
+                   "spatial": {"neighbors": cfg.spatial_neighbors, "max_distance": cfg.spatial_max_distance,
+                               "ignore_z": cfg.spatial_ignore_z}}.get(matching)
+        stages.run(f"matching{suffix}", {"matching": matching, "pairing": pairing},
+                   lambda: match(features, database, matching, cfg, guided), outputs=[database])
+        stages.run(f"mapping{suffix}", {"mapper": mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
+                   lambda: map(database, work / "images", model_dir, cfg, fixed, mapper), outputs=[model_dir])
+        return model_dir, ext, matching, with_gps
+
+    def registered(model_dir: Path) -> list[str]:
+        rec = pycolmap.Reconstruction(str(model_dir))
+        return sorted(rec.images[i].name for i in rec.reg_image_ids())
+
+    # small photos that leave images out: SIFT again on 2x upsampled copies, with guided matching
+    small = [c for c in camera_groups(images, cfg, upscale_small=True) if c["sift_upscale"] > 1]
+    model_dir = None
+    try:
+        model_dir, ext, matching, with_gps = sift_pass(cameras)
+        reg_names = registered(model_dir)
+    except SfMError:
+        if not small:
+            raise
+        reg_names = []
+    if small and len(reg_names) < len(names):
+        log.info("%d of %d images registered; SIFT again on the photos under %d pixels upsampled 2x",
+                 len(reg_names), len(names), cfg.small_image_size)
+        up = camera_groups(images, cfg, upscale_small=True)
+        try:
+            up_result = sift_pass(up, "_upsampled")
+        except SfMError:
+            if not reg_names:
+                raise
+        else:
+            if len(registered(up_result[0])) > len(reg_names):
+                model_dir, ext, matching, with_gps = up_result
+                cameras, reg_names = up, registered(up_result[0])
+    if model_dir is None:
+        raise SfMError(f"0 of {len(names)} images registered: no two images could be matched into a model "
+                       "(do the photos overlap? are they all identical?)")
     unreg = [n for n in names if n not in set(reg_names)]
     if len(reg_names) < max(2, cfg.min_registered * len(names)):
         raise SfMError(f"{len(reg_names)} of {len(names)} images registered; not registered: "

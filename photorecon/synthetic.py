@@ -47,7 +47,8 @@ class SynthConfig:
 
     scene: Literal["blob", "knot", "room"] = field(default="blob", metadata={"help": "built-in procedural scene"})
     mesh: str | None = field(default=None, metadata={"help": "mesh file (OBJ, PLY, GLB, STL, OFF) instead of --scene", "metavar": "FILE"})
-    rig: Literal["sphere", "ring", "hemisphere"] = field(default="sphere", metadata={"help": "camera placement"})
+    rig: Literal["sphere", "ring", "hemisphere", "stereo", "pair"] = field(default="sphere", metadata={"help": "camera placement: sphere, ring or hemisphere around the scene; stereo = a rectified pair (--baseline apart along x); pair = two cameras --baseline apart looking at the centre (--views ignored)"})
+    baseline: float = field(default=0.3, metadata={"help": "stereo and pair rigs: distance between the two cameras, scene units", "range": (0.0, 1e9), "exclusive_min": True})
     views: int = field(default=40, metadata={"help": "number of views", "range": (1, 100_000)})
     width: int = field(default=640, metadata={"help": "image width, pixels", "range": (16, 16384)})
     height: int = field(default=480, metadata={"help": "image height, pixels", "range": (16, 16384)})
@@ -144,6 +145,8 @@ def make_views(cfg: SynthConfig) -> list[View]:
     if cfg.width < 1 or cfg.height < 1:
         raise BadArgumentError(f"image size: expected positive width and height, got {cfg.width}x{cfg.height}")
     intr = Intrinsics.from_fov(cfg.width, cfg.height, cfg.fov)
+    if cfg.rig in ("stereo", "pair"):
+        return _two_views(cfg, intr)
     if cfg.rig == "ring":
         pos = ring_positions(cfg.views, cfg.radius, cfg.elevation)
     else:
@@ -164,6 +167,28 @@ def make_views(cfg: SynthConfig) -> list[View]:
             J[:3, :3] = Rotation.from_rotvec(rng.normal(size=3) * np.radians(cfg.jitter_deg) / np.sqrt(3)).as_matrix()
             T = J @ T
         views.append(View(f"view_{i:03d}", intr, T, image_file=f"view_{i:03d}.png"))
+    return views
+
+
+def _two_views(cfg: SynthConfig, intr: Intrinsics) -> list[View]:
+    """Two cameras ``cfg.baseline`` apart along the image x axis of a camera at ``cfg.radius`` and
+    ``cfg.elevation`` degrees looking at the centre: one orientation (``stereo``: a rectified pair, disparity =
+    fx * baseline / depth) or each looking at the centre (``pair``)."""
+    if not cfg.baseline > 0:
+        raise BadArgumentError(f"--baseline: expected > 0, got {cfg.baseline}")
+    up = np.array([0.0, 1.0, 0.0]) if cfg.up == "y" else np.array([0.0, 0.0, 1.0])
+    centre = ring_positions(1, cfg.radius, cfg.elevation)[0] @ (Y_UP_FROM_Z_UP.T if cfg.up == "y" else np.eye(3))
+    T = look_at_views([centre], (0, 0, 0), up)[0]
+    x_axis = T[0, :3]  # the image x axis in the world
+    pos = [centre - 0.5 * cfg.baseline * x_axis, centre + 0.5 * cfg.baseline * x_axis]
+    views = []
+    for i, p in enumerate(pos):
+        if cfg.rig == "stereo":
+            Ti = T.copy()
+            Ti[:3, 3] = -T[:3, :3] @ p
+        else:
+            Ti = look_at_views([p], (0, 0, 0), up)[0]
+        views.append(View(f"view_{i:03d}", intr, Ti, image_file=f"view_{i:03d}.png"))
     return views
 
 

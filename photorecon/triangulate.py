@@ -117,7 +117,8 @@ def _normalize_contrast(bgr: np.ndarray, how: str, valid: np.ndarray | None) -> 
 def _prepare_images(images_dir: Path, views: list[View], work: Path, use_alpha: bool,
                     contrast: str) -> tuple[list[str], bool]:
     """Write 8-bit 3-channel PNG copies ``work/images/<view name>.png`` (contrast-normalised) and alpha masks
-    (``work/masks/<view name>.png.png``, COLMAP's naming). Returns (names in the work folder, any mask?)."""
+    (``work/masks/<view name>.png.png``, COLMAP's naming; all 255 for the views without alpha when any has one).
+    Returns (names in the work folder, any mask?)."""
     img_dir, mask_dir = work / "images", work / "masks"
     img_dir.mkdir(parents=True)
     names, any_mask = [], False
@@ -137,6 +138,10 @@ def _prepare_images(images_dir: Path, views: list[View], work: Path, use_alpha: 
             cv2.imwrite(str(mask_dir / f"{name}.png"), np.where(alpha > 0, 255, 0).astype(np.uint8))
             any_mask = True
         names.append(name)
+    if any_mask:  # COLMAP skips an image without a mask file once it is given a mask folder: use those whole
+        for v, name in zip(views, names):
+            if not (mask_dir / f"{name}.png").is_file():
+                cv2.imwrite(str(mask_dir / f"{name}.png"), np.full(v.intrinsics.size[::-1], 255, np.uint8))
     return names, any_mask
 
 
@@ -326,16 +331,23 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
         rec = _given_reconstruction(pycolmap, db, views, names, work)
     finally:
         db.close()
-    opt = pycolmap.IncrementalPipelineOptions()
-    opt.num_threads = cfg.threads
-    opt.extract_colors = False  # the working copies are contrast-normalised: colours come from the originals
     sparse_dir = work / "sparse"
     sparse_dir.mkdir()
-    try:
-        rec = pycolmap.triangulate_points(rec, str(db_path), str(work / "images"), str(sparse_dir),
-                                          clear_points=True, options=opt, refine_intrinsics=False)
-    except Exception as exc:  # pycolmap raises RuntimeError / ValueError with COLMAP's check message
-        return fail(f"COLMAP's point triangulator failed ({_first_line(exc)})")
+    # COLMAP ignores features seen in two views only (fewer, surer points); a pair has no other tracks, and a
+    # sparse capture may have too few longer ones: then the two-view tracks count too
+    for two_view in ((True,) if len(views) == 2 else (False, True)):
+        opt = pycolmap.IncrementalPipelineOptions()
+        opt.num_threads = cfg.threads
+        opt.extract_colors = False  # the working copies are contrast-normalised: colours come from the originals
+        opt.triangulation.ignore_two_view_tracks = not two_view
+        try:
+            tri = pycolmap.triangulate_points(rec, str(db_path), str(work / "images"), str(sparse_dir),
+                                              clear_points=True, options=opt, refine_intrinsics=False)
+        except Exception as exc:  # pycolmap raises RuntimeError / ValueError with COLMAP's check message
+            return fail(f"COLMAP's point triangulator failed ({_first_line(exc)})")
+        if tri.num_points3D() >= cfg.min_points:
+            break
+    rec = tri
     stats.seconds["triangulation"] = time.perf_counter() - t0
 
     result, moved = _to_model(rec, views, names)

@@ -1,0 +1,110 @@
+"""SfM on the inputs people have: masks for some of the images only, a few small photos; and messages that fit
+the input (--min-registered, --voxel-size)."""
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from photorecon.cli import main
+from photorecon.errors import BadArgumentError
+from photorecon.sfm import SfMConfig, run_sfm, write_colmap_masks
+
+
+def test_images_without_a_mask_are_used_whole(tmp_path):
+    """Once any image has a mask (a user's file or an alpha channel), every other image gets an all-255 mask:
+    COLMAP skips an image without a mask file once it is given a mask folder."""
+    src, user, dst = tmp_path / "images", tmp_path / "masks", tmp_path / "colmap_masks"
+    for d in (src, user, dst):
+        d.mkdir()
+    rng = np.random.default_rng(0)
+    grey = rng.integers(0, 255, (30, 40, 3), np.uint8)
+    cv2.imwrite(str(src / "a.png"), grey)
+    cv2.imwrite(str(src / "b.jpg"), grey)
+    alpha = np.zeros((30, 40), np.uint8)
+    alpha[10:20, 10:30] = 255
+    cv2.imwrite(str(src / "c.png"), np.dstack([grey, alpha]))  # RGBA: alpha is its mask
+    user_mask = np.zeros((30, 40), np.uint8)
+    user_mask[:, :20] = 255
+    cv2.imwrite(str(user / "a.png"), user_mask)
+    images = [("a.png", 40, 30), ("b.jpg", 40, 30), ("c.png", 40, 30)]
+    assert write_colmap_masks(images, src, user, dst) == 2
+    got = {p.name: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in dst.iterdir()}
+    assert sorted(got) == ["a.png.png", "b.jpg.png", "c.png.png"]
+    assert (got["b.jpg.png"] == 255).all()  # no mask: used whole
+    assert (got["a.png.png"] == user_mask).all() and (got["c.png.png"] == alpha).all()
+    # no mask anywhere: no mask folder content at all (COLMAP then uses every image whole)
+    none = tmp_path / "none"
+    none.mkdir()
+    assert write_colmap_masks([("a.png", 40, 30), ("b.jpg", 40, 30)], src, None, none) == 0
+    assert not any(none.iterdir())
+
+
+@pytest.mark.slow
+def test_sfm_registers_every_image_when_only_some_have_masks(ring16, tmp_path):
+    """One RGBA photo (alpha as its mask) and a mask folder for half of the others: every image registers."""
+    images, masks = tmp_path / "images", tmp_path / "masks"
+    images.mkdir()
+    masks.mkdir()
+    names = sorted(p.name for p in (ring16 / "images").glob("*.png"))
+    for k, name in enumerate(names):
+        img = cv2.imread(str(ring16 / "images" / name))
+        if k == 0:
+            alpha = cv2.imread(str(ring16 / "masks" / name), cv2.IMREAD_GRAYSCALE)
+            img = np.dstack([img, alpha])
+        cv2.imwrite(str(images / name), img)
+        if 0 < k <= len(names) // 2:
+            shutil.copyfile(ring16 / "masks" / name, masks / name)
+    out = tmp_path / "out"
+    assert main(["-q", "sfm", str(images), "-o", str(out), "--masks", str(masks)]) == 0
+    report = json.loads((out / "colmap" / "sfm_report.json").read_text())
+    assert len(report["registered"]) == len(names) and report["unregistered"] == []
+    assert len(list((out / "colmap" / "masks").iterdir())) == len(names)
+
+
+@pytest.mark.slow
+def test_twelve_small_sphere_views_register(tmp_path):
+    """12 views of the blob at 320x240 on the default sphere rig, 53-60 degrees apart: small photos are
+    mapped again with relaxed thresholds and, still leaving images out, given SIFT again on 2x upsampled copies
+    with guided matching: (nearly) all register, in place."""
+    from photorecon.metrics import pose_metrics
+    from photorecon.synthetic import SynthConfig, synthesize
+
+    data = tmp_path / "data"
+    synthesize(SynthConfig(scene="blob", views=12, width=320, height=240), data, overwrite=True)
+    res = run_sfm(data / "images", tmp_path / "out", SfMConfig())
+    assert len(res.registered) >= 10
+    from photorecon.io.dataset import read_model
+
+    pm = pose_metrics(res.model.views, read_model(data / "sparse" / "0").views)
+    assert pm["rot_mean_deg"] < 1.0
+
+
+def test_min_registered_is_a_fraction(tmp_path, capsys):
+    """--min-registered 2 is refused before any work, saying what the setting means (not a list of zero
+    unregistered images)."""
+    with pytest.raises(BadArgumentError, match="fraction"):
+        run_sfm(tmp_path, tmp_path / "out", SfMConfig(min_registered=2.0))
+    assert not (tmp_path / "out").exists()
+    src = tmp_path / "images"
+    src.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(src / f"{k}.png"), np.full((20, 20, 3), 80 * k, np.uint8))
+    assert main(["-q", "sfm", str(src), "-o", str(tmp_path / "o"), "--min-registered", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--min-registered" in err and "not registered" not in err and len(err.splitlines()) == 1
+
+
+def test_voxel_larger_than_the_scene_is_refused_naming_the_scene(blob_small):
+    """--voxel-size 1e9: the message says the voxel exceeds the scene (about its size) and to use a smaller one."""
+    from photorecon.fusion import FusionConfig, load_frames, scene_diagonal, tsdf_voxel_size
+    from photorecon.io.dataset import Dataset
+
+    frames = load_frames(Dataset.open(blob_small), FusionConfig())
+    diag = scene_diagonal(frames)
+    with pytest.raises(BadArgumentError, match="larger than the scene.*smaller --voxel-size") as e:
+        tsdf_voxel_size(frames, FusionConfig(voxel_size=1e9))
+    assert f"{diag:.3g}" in str(e.value)
+    voxel, _ = tsdf_voxel_size(frames, FusionConfig(voxel_size=diag / 100))  # a sensible one passes
+    assert voxel == pytest.approx(diag / 100)
