@@ -91,7 +91,10 @@ def test_min_registered_is_a_fraction(tmp_path, capsys):
     src.mkdir()
     for k in range(3):
         cv2.imwrite(str(src / f"{k}.png"), np.full((20, 20, 3), 80 * k, np.uint8))
-    assert main(["-q", "sfm", str(src), "-o", str(tmp_path / "o"), "--min-registered", "2"]) == 2
+    with pytest.raises(SystemExit) as exc:  # refused when the arguments are parsed
+        main(["-q", "sfm", str(src), "-o", str(tmp_path / "o"), "--min-registered", "2"])
+    assert exc.value.code == 2
+    assert not (tmp_path / "o").exists()
     err = capsys.readouterr().err.strip()
     assert "--min-registered" in err and "not registered" not in err and len(err.splitlines()) == 1
 
