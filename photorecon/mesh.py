@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import trimesh
@@ -32,7 +33,8 @@ class CleanConfig:
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)"})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
-    object: bool = field(default=False, metadata={"help": "object capture (an object standing on a table or turntable): find the support plane (all cameras on one side of it, the point the cameras look at on their side, a large flat part of the surface around under that point) and remove it and everything below it, keeping the object alone; one line reports what was removed (default off: a scene's ground stays)"})
+    scene: Literal["auto", "object", "open"] = field(default="auto", metadata={"help": "object: an object on a table or turntable, the support plane under it and everything below it removed; open: a facade, street or room, the ground kept; auto: object when the cameras look at one point from around it, a support plane lies under it and their photos frame it whole, else open"})
+    object: bool = field(default=False, metadata={"help": "the same as --scene object"})
     object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = the support's own thickness as fused: 1.25 x how far its flat surface reaches below the plane (99th percentile), at least 2 TSDF voxels)"})
 
 
@@ -98,9 +100,15 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
         if np.any(hi <= lo):
             raise BadArgumentError(f"crop: expected min < max on every axis, got {list(cfg.crop)}")
         m = m.crop(o3d.geometry.AxisAlignedBoundingBox(lo, hi))
-    support = None
-    if cfg.object and len(m.triangles):
-        support = remove_support(m, cameras, mesh.metadata.get("voxel_size"), cfg.object_cut)
+    mode = "object" if cfg.object else cfg.scene
+    if mode not in ("auto", "object", "open"):
+        raise BadArgumentError(f"scene: expected auto, object or open, got {mode!r}")
+    scene = {"mode": "open", "detected": "open", "reason": "--scene open", "support_removed": None}
+    if mode != "open" and len(m.triangles):
+        from .scene import detect_and_remove
+
+        scene = detect_and_remove(m, cameras, mesh.metadata.get("voxel_size"), cfg.object_cut, mode)
+    support = scene["support_removed"]
     if len(m.triangles) and min_component > 0:
         drop = floater_mask(m, min_component, cfg.floater_distance, min(cfg.min_detail, min_component), cameras)
         if drop.any():
@@ -117,6 +125,7 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     out.metadata.update({k: v for k, v in mesh.metadata.items() if isinstance(v, (bool, int, float, str))})
     if support is not None:
         out.metadata.update(support)
+    out.metadata["scene"] = scene
     if cfg.cluster_voxel > 0:
         out = from_open3d(to_open3d(out).simplify_vertex_clustering(cfg.cluster_voxel))
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
@@ -284,19 +293,20 @@ def find_support_plane(points: np.ndarray, normals: np.ndarray, cameras, tol: fl
     return n, c
 
 
-def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
-                   seed: int = 0) -> dict | None:
-    """Object capture: remove from the Open3D mesh ``m`` (in place) the plane the object stands on
-    (``find_support_plane``, fitted to ``n_samples`` area-uniform surface samples, inliers within 2 voxels, or
-    1/1000 of the samples' extent without ``voxel``) and every triangle whose centre lies below ``cut`` above
-    it (0: the support's own thickness as fused, 1.25 x the 99th percentile depth of its flat samples below the
-    plane, mirrored: nothing of the object lies below it; at least 2 voxels). Logs one line; returns what was removed (metadata: ``support_normal``,
-    ``support_offset``, ``support_cut``, ``support_removed_faces``, ``support_removed_area``) or None (logged)
-    when no support plane is found."""
+def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
+                 seed: int = 0):
+    """The support plane of the Open3D mesh ``m`` (``find_support_plane``, fitted to ``n_samples`` area-uniform
+    surface samples, inliers within 2 voxels, or 1/1000 of the samples' extent without ``voxel``) and the cut
+    above it (``cut``; 0: the support's own thickness as fused, 1.25 x the 99th percentile depth of its flat
+    samples below the plane, mirrored: nothing of the object lies below it; at least 2 voxels). Returns
+    (n, c, cut, drop): the plane n . X = c (n towards the cameras), the cut height and, per triangle, True where
+    its centre lies below the cut; or None when there is no such plane. Changes nothing."""
     if cameras is None or not len(cameras):
         raise BadArgumentError("--object needs the cameras (to tell which side of the table they are on)")
     V = np.asarray(m.vertices)
     T = np.asarray(m.triangles)
+    if not len(T):
+        return None
     tri = V[T]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if not area.sum() > 0:
@@ -315,8 +325,6 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
     tol = 2 * unit
     plane = find_support_plane(pts, nrm, cameras, tol, seed=seed)
     if plane is None:
-        log.info("object: no support plane found (no large flat part of the surface with every camera on one "
-                 "side and the object on theirs); nothing removed")
         return None
     n, c = plane
     if not cut > 0:  # the fused support is not flat (a bowed board, noise): mirror its spread below the plane
@@ -324,17 +332,37 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
         under = (h_pts < 0) & (h_pts > -10 * unit) & (np.abs(nrm @ n) > np.cos(np.radians(30.0)))
         spread = float(np.percentile(-h_pts[under], 99)) if under.sum() >= 100 else 0.0
         cut = max(2 * unit, 1.25 * spread)
-    h_tri = tri.mean(1) @ n - c
-    drop = h_tri < cut
+    return n, c, float(cut), tri.mean(1) @ n - c < cut
+
+
+def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
+                   seed: int = 0, found=None, quiet: bool = False) -> dict | None:
+    """Object capture: remove from the Open3D mesh ``m`` (in place) the plane the object stands on and every
+    triangle whose centre lies below the cut above it (``find_support``, or ``found``, its result for this
+    mesh). Logs one line (unless ``quiet``); returns what was removed (metadata: ``support_normal``,
+    ``support_offset``, ``support_cut``, ``support_removed_faces``, ``support_removed_area``) or None (logged)
+    when no support plane is found."""
+    if found is None:
+        found = find_support(m, cameras, voxel, cut, n_samples, seed)
+    if found is None:
+        if not quiet:
+            log.info("object: no support plane found (no large flat part of the surface with every camera on one "
+                     "side and the object on theirs); nothing removed")
+        return None
+    n, c, cut, drop = found
+    V = np.asarray(m.vertices)
+    tri = V[np.asarray(m.triangles)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     removed = float(area[drop].sum())
+    total = float(area.sum())
     m.remove_triangles_by_mask(drop)
     m.remove_unreferenced_vertices()
     info = {"support_normal": ",".join(f"{x:.5f}" for x in n), "support_offset": float(c), "support_cut": float(cut),
             "support_removed_faces": int(drop.sum()), "support_removed_area": removed}
-    log.info("object: support plane %s . X = %.5g found (%.0f%% of the surface within %.3g of it); removed it and "
-             "everything below %.3g above it: %d faces, %.4g of %.4g area (%.0f%%)", info["support_normal"], c,
-             100 * float((np.abs(pts @ n - c) < tol).mean()), tol, cut, int(drop.sum()), removed, float(area.sum()),
-             100 * removed / float(area.sum()))
+    if not quiet:
+        log.info("object: support plane %s . X = %.5g found; removed it and everything below %.3g above it: %d "
+                 "faces, %.4g of %.4g area (%.0f%%)", info["support_normal"], c, cut, int(drop.sum()), removed,
+                 total, 100 * removed / max(total, 1e-300))
     return info
 
 
