@@ -332,7 +332,43 @@ def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_sam
         under = (h_pts < 0) & (h_pts > -10 * unit) & (np.abs(nrm @ n) > np.cos(np.radians(30.0)))
         spread = float(np.percentile(-h_pts[under], 99)) if under.sum() >= 100 else 0.0
         cut = max(2 * unit, 1.25 * spread)
-    return n, c, float(cut), tri.mean(1) @ n - c < cut
+    h = tri.mean(1) @ n - c
+    drop = h < cut
+    target = _look_at_point(cameras)
+    if target is None:
+        target = np.median(pts, axis=0)
+    return n, c, float(cut), drop | _support_rims(m, n, h, drop, 0.25 * float(target @ n - c))
+
+
+def _support_rims(m, n: np.ndarray, h: np.ndarray, below: np.ndarray, max_height: float,
+                  max_tilt_deg: float = 30.0) -> np.ndarray:
+    """Per triangle of the Open3D mesh ``m``: True on the support's surface that rises above the cut (a bowed or
+    warped board, its rims): triangles that face up like the support (normal within ``max_tilt_deg`` of ``n``,
+    on the side the support's own flat triangles face), lie less than ``max_height`` above the plane (``h``:
+    their heights) and are connected through such triangles to the part ``below`` the cut. An object's sides and
+    underside do not face up, so the growth stops at its foot."""
+    import open3d as o3d
+
+    T = np.asarray(m.triangles)
+    V = np.asarray(m.vertices)
+    tri = V[T]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    cos = (fn @ n) / np.maximum(np.linalg.norm(fn, axis=1), 1e-300)
+    flat_below = below & (np.abs(cos) > np.cos(np.radians(max_tilt_deg)))
+    if not flat_below.any():
+        return np.zeros(len(T), bool)
+    if np.median(cos[flat_below]) < 0:  # the mesh's faces wound the other way: "up" is -n for them
+        cos = -cos
+    cand = (cos > np.cos(np.radians(max_tilt_deg))) & (h < max_height)
+    idx = np.flatnonzero(cand)
+    if not len(idx):
+        return np.zeros(len(T), bool)
+    sub = o3d.geometry.TriangleMesh(m.vertices, o3d.utility.Vector3iVector(T[idx]))
+    labels = np.asarray(sub.cluster_connected_triangles()[0])
+    seeds = np.unique(labels[below[idx]])
+    out = np.zeros(len(T), bool)
+    out[idx[np.isin(labels, seeds)]] = True
+    return out & ~below
 
 
 def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,

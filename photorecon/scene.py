@@ -195,7 +195,8 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
 
 def _log(info: dict) -> None:
     s = info.get("support_removed")
-    did = (f"support plane removed with everything below {s['support_cut']:.3g} above it ({s['support_removed_faces']} "
-           f"faces, area {s['support_removed_area']:.4g})" if s else "nothing removed, the ground kept")
+    did = (f"support plane removed, with everything below {s['support_cut']:.3g} above it and the support's up-facing "
+           f"surface connected to it ({s['support_removed_faces']} faces, area {s['support_removed_area']:.4g})"
+           if s else "nothing removed, the ground kept")
     log.info("scene: %s (%s; %s): %s", info["detected"], "detected" if info["mode"] == "auto" else "given",
              info["reason"], did)
