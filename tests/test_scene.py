@@ -169,3 +169,26 @@ def test_fusion_stage_reports_the_scene(tmp_path, on_table):
     import json
 
     json.dumps(info)  # report.json can hold it
+
+
+def test_a_bowed_support_goes_whole_the_object_stays(ring):
+    """A table bowed upwards towards its rims (2-3 voxels higher at the edge of the view than under the object):
+    its rims rise above the cut, and they go too (its up-facing surface connected to the part below the cut),
+    while the object's sides and underside, which do not face up, stay."""
+    half, k = 1.2, 0.05  # z = PLANE_Z + k r^2: 0.05 higher at r = 1, 0.07 at the corners (the voxel is ~0.02)
+    g = np.linspace(-half, half, 61)
+    X, Y = np.meshgrid(g, g)
+    V = np.stack([X.ravel(), Y.ravel(), PLANE_Z + k * (X.ravel() ** 2 + Y.ravel() ** 2)], 1)
+    i = np.arange(60)[:, None] * 61 + np.arange(60)[None, :]
+    F = np.concatenate([np.stack([i, i + 1, i + 62], -1).reshape(-1, 3), np.stack([i, i + 62, i + 61], -1).reshape(-1, 3)])
+    table = trimesh.Trimesh(V, F, process=False)
+    fused = _fused(trimesh.util.concatenate([_object(), table]), ring)
+    voxel = float(fused.metadata["voxel_size"])
+    out = clean(fused, CleanConfig(fill_holes_voxels=0), cameras=ring)
+    assert out.metadata["scene"]["detected"] == "object"
+    pts = trimesh.sample.sample_surface(out, 20_000, seed=0)[0]
+    assert np.quantile(distance_to(_object(), pts), 0.999) < voxel  # nothing of the bowed table left
+    gt = trimesh.sample.sample_surface(_object(), 20_000, seed=1)[0]
+    gt = gt[gt[:, 2] > PLANE_Z + 0.1]  # the object above the table's highest point under it
+    seen = gt[distance_to(clean(fused, CleanConfig(scene="open", fill_holes_voxels=0), cameras=ring), gt) < voxel]
+    assert np.mean(distance_to(out, seen) < voxel) > 0.999
