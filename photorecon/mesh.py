@@ -33,9 +33,9 @@ class CleanConfig:
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)"})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size (0 = off)"})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax"})
-    scene: Literal["auto", "object", "open"] = field(default="auto", metadata={"help": "object: an object on a table or turntable, the support plane under it and everything below it removed; open: a facade, street or room, the ground kept; auto: object when the cameras look at one point from around it, a support plane lies under it and their photos frame it whole, else open"})
+    scene: Literal["auto", "object", "open"] = field(default="auto", metadata={"help": "object: remove the table or turntable an object stands on (the support plane and all below it); open: keep the ground; auto: object when the cameras look at one point from around it and a support plane lies under it"})
     object: bool = field(default=False, metadata={"help": "the same as --scene object"})
-    object_cut: float = field(default=0.0, metadata={"help": "--object: remove the surface up to this height above the support plane (scene units; 0 = the support's own thickness as fused: 1.25 x how far its flat surface reaches below the plane (99th percentile), at least 2 TSDF voxels)"})
+    object_cut: float = field(default=0.0, metadata={"help": "object captures: remove the surface up to this height above the support plane (scene units; 0 = the support's own thickness as fused: 1.25 x how far its flat surface reaches below the plane (99th percentile), at least 2 TSDF voxels)"})
 
 
 def to_open3d(mesh: trimesh.Trimesh):
