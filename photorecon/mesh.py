@@ -177,10 +177,49 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
             gap = float(tree.query(V[verts], k=1)[0].min())
             if gap > floater_distance * size:
                 drop[c] = True
+        far = small[drop[small]]
+        if len(far):  # a fragment near a kept fragment is kept too: a speckled surface is one piece
+            drop[far[_linked(V[T].mean(1), labels, ~drop, far, floater_distance * size)]] = False
     n_drop = int(drop.sum())
     if n_drop:
         log.debug("cleaning: %d of %d components dropped (debris or floaters)", n_drop, n)
     return drop[labels]
+
+
+def _linked(centres: np.ndarray, labels: np.ndarray, kept: np.ndarray, candidates: np.ndarray, gap: float) -> np.ndarray:
+    """Per component in ``candidates``: True when a chain of components (the ``kept`` ones and the candidates),
+    each within about ``gap`` of the next (triangle ``centres`` in the same or neighbouring cells of a grid of
+    gap / 2: always linked closer than gap / 2, never farther than gap along an axis), reaches a kept one."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(kept)
+    use = kept.copy()
+    use[candidates] = True
+    tri = np.flatnonzero(use[labels])
+    cell = np.floor(centres[tri] / (0.5 * gap)).astype(np.int64)
+    cell -= cell.min(0)
+    dims = cell.max(0) + 3
+
+    def code(c):
+        return ((c[:, 0] + 1) * dims[1] + (c[:, 1] + 1)) * dims[2] + (c[:, 2] + 1)
+
+    keys, inv = np.unique(code(cell), return_inverse=True)
+    cells = np.unique(cell, axis=0)
+    own = np.searchsorted(keys, code(cells))
+    rows, cols = [n + inv.ravel()], [labels[tri]]  # a cell and the components in it
+    for off in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T:
+        k = code(cells + off)
+        j = np.minimum(np.searchsorted(keys, k), len(keys) - 1)
+        hit = keys[j] == k
+        rows.append(n + own[hit])
+        cols.append(n + j[hit])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n + len(keys),) * 2)
+    _, comp = connected_components(graph, directed=False)
+    reach = np.zeros(comp.max() + 1, bool)
+    reach[comp[:n][kept]] = True
+    return reach[comp[candidates]]
 
 
 def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,

@@ -35,7 +35,7 @@ OVERHEAD_DEG = 80.0  # cameras this far above the support plane, seen from the l
 
 
 def _views(cameras) -> list:
-    return [c for c in (cameras or []) if hasattr(c, "cam_from_world") and hasattr(c, "intrinsics")]
+    return [c for c in (() if cameras is None else cameras) if hasattr(c, "cam_from_world") and hasattr(c, "intrinsics")]
 
 
 def look_at_point(views) -> np.ndarray | None:
