@@ -1256,6 +1256,7 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
              "invented", len(frames), len(mesh.vertices), len(mesh.faces), surface["watertight"],
              surface["boundary_edges"], 100 * surface["invented_fraction"])
-    support = {k: v for k, v in mesh.metadata.items() if k.startswith("support_")}  # --object: what was removed
+    support = {k: v for k, v in mesh.metadata.items() if k.startswith("support_")}  # the object's support removed
+    scene = {"scene": mesh.metadata["scene"]} if "scene" in mesh.metadata else {}  # what --scene detected and did
     return mesh, {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
-                  "mesher": cfg.mesher, **surface, **support}
+                  "mesher": cfg.mesher, **surface, **support, **scene}

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import trimesh
@@ -32,7 +33,8 @@ class CleanConfig:
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)", "range": (0, 2_000_000_000)})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units", "range": (None, None), "length": 6, "box": True, "metavar": "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"})
-    object: bool = field(default=False, metadata={"help": "object capture (on a table or turntable): find the support plane under the point the cameras look at and remove it and everything below it"})
+    scene: Literal["auto", "object", "open"] = field(default="auto", metadata={"help": "object: remove the table or turntable an object stands on; open: keep the ground; auto: object when the cameras look at one point from around it and a support plane lies under it"})
+    object: bool = field(default=False, metadata={"help": "the same as --scene object"})
     object_cut: float = field(default=0.0, metadata={"help": "--object: remove up to this height above the support plane, scene units (0 = the support's fused thickness)", "range": (0.0, None)})
 
 
@@ -98,9 +100,15 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
         if np.any(hi <= lo):
             raise BadArgumentError(f"crop: expected min < max on every axis, got {list(cfg.crop)}")
         m = m.crop(o3d.geometry.AxisAlignedBoundingBox(lo, hi))
-    support = None
-    if cfg.object and len(m.triangles):
-        support = remove_support(m, cameras, mesh.metadata.get("voxel_size"), cfg.object_cut)
+    mode = "object" if cfg.object else cfg.scene
+    if mode not in ("auto", "object", "open"):
+        raise BadArgumentError(f"scene: expected auto, object or open, got {mode!r}")
+    scene = {"mode": "open", "detected": "open", "reason": "--scene open", "support_removed": None}
+    if mode != "open" and len(m.triangles):
+        from .scene import detect_and_remove
+
+        scene = detect_and_remove(m, cameras, mesh.metadata.get("voxel_size"), cfg.object_cut, mode)
+    support = scene["support_removed"]
     if len(m.triangles) and min_component > 0:
         drop = floater_mask(m, min_component, cfg.floater_distance, min(cfg.min_detail, min_component), cameras)
         if drop.any():
@@ -117,6 +125,7 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     out.metadata.update({k: v for k, v in mesh.metadata.items() if isinstance(v, (bool, int, float, str))})
     if support is not None:
         out.metadata.update(support)
+    out.metadata["scene"] = scene
     if cfg.cluster_voxel > 0:
         out = from_open3d(to_open3d(out).simplify_vertex_clustering(cfg.cluster_voxel))
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
@@ -168,10 +177,49 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
             gap = float(tree.query(V[verts], k=1)[0].min())
             if gap > floater_distance * size:
                 drop[c] = True
+        far = small[drop[small]]
+        if len(far):  # a fragment near a kept fragment is kept too: a speckled surface is one piece
+            drop[far[_linked(V[T].mean(1), labels, ~drop, far, floater_distance * size)]] = False
     n_drop = int(drop.sum())
     if n_drop:
         log.debug("cleaning: %d of %d components dropped (debris or floaters)", n_drop, n)
     return drop[labels]
+
+
+def _linked(centres: np.ndarray, labels: np.ndarray, kept: np.ndarray, candidates: np.ndarray, gap: float) -> np.ndarray:
+    """Per component in ``candidates``: True when a chain of components (the ``kept`` ones and the candidates),
+    each within about ``gap`` of the next (triangle ``centres`` in the same or neighbouring cells of a grid of
+    gap / 2: always linked closer than gap / 2, never farther than gap along an axis), reaches a kept one."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(kept)
+    use = kept.copy()
+    use[candidates] = True
+    tri = np.flatnonzero(use[labels])
+    cell = np.floor(centres[tri] / (0.5 * gap)).astype(np.int64)
+    cell -= cell.min(0)
+    dims = cell.max(0) + 3
+
+    def code(c):
+        return ((c[:, 0] + 1) * dims[1] + (c[:, 1] + 1)) * dims[2] + (c[:, 2] + 1)
+
+    keys, inv = np.unique(code(cell), return_inverse=True)
+    cells = np.unique(cell, axis=0)
+    own = np.searchsorted(keys, code(cells))
+    rows, cols = [n + inv.ravel()], [labels[tri]]  # a cell and the components in it
+    for off in np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T:
+        k = code(cells + off)
+        j = np.minimum(np.searchsorted(keys, k), len(keys) - 1)
+        hit = keys[j] == k
+        rows.append(n + own[hit])
+        cols.append(n + j[hit])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n + len(keys),) * 2)
+    _, comp = connected_components(graph, directed=False)
+    reach = np.zeros(comp.max() + 1, bool)
+    reach[comp[:n][kept]] = True
+    return reach[comp[candidates]]
 
 
 def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,
@@ -284,19 +332,20 @@ def find_support_plane(points: np.ndarray, normals: np.ndarray, cameras, tol: fl
     return n, c
 
 
-def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
-                   seed: int = 0) -> dict | None:
-    """Object capture: remove from the Open3D mesh ``m`` (in place) the plane the object stands on
-    (``find_support_plane``, fitted to ``n_samples`` area-uniform surface samples, inliers within 2 voxels, or
-    1/1000 of the samples' extent without ``voxel``) and every triangle whose centre lies below ``cut`` above
-    it (0: the support's own thickness as fused, 1.25 x the 99th percentile depth of its flat samples below the
-    plane, mirrored: nothing of the object lies below it; at least 2 voxels). Logs one line; returns what was removed (metadata: ``support_normal``,
-    ``support_offset``, ``support_cut``, ``support_removed_faces``, ``support_removed_area``) or None (logged)
-    when no support plane is found."""
+def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
+                 seed: int = 0):
+    """The support plane of the Open3D mesh ``m`` (``find_support_plane``, fitted to ``n_samples`` area-uniform
+    surface samples, inliers within 2 voxels, or 1/1000 of the samples' extent without ``voxel``) and the cut
+    above it (``cut``; 0: the support's own thickness as fused, 1.25 x the 99th percentile depth of its flat
+    samples below the plane, mirrored: nothing of the object lies below it; at least 2 voxels). Returns
+    (n, c, cut, drop): the plane n . X = c (n towards the cameras), the cut height and, per triangle, True where
+    its centre lies below the cut; or None when there is no such plane. Changes nothing."""
     if cameras is None or not len(cameras):
         raise BadArgumentError("--object needs the cameras (to tell which side of the table they are on)")
     V = np.asarray(m.vertices)
     T = np.asarray(m.triangles)
+    if not len(T):
+        return None
     tri = V[T]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if not area.sum() > 0:
@@ -315,8 +364,6 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
     tol = 2 * unit
     plane = find_support_plane(pts, nrm, cameras, tol, seed=seed)
     if plane is None:
-        log.info("object: no support plane found (no large flat part of the surface with every camera on one "
-                 "side and the object on theirs); nothing removed")
         return None
     n, c = plane
     if not cut > 0:  # the fused support is not flat (a bowed board, noise): mirror its spread below the plane
@@ -324,17 +371,73 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
         under = (h_pts < 0) & (h_pts > -10 * unit) & (np.abs(nrm @ n) > np.cos(np.radians(30.0)))
         spread = float(np.percentile(-h_pts[under], 99)) if under.sum() >= 100 else 0.0
         cut = max(2 * unit, 1.25 * spread)
-    h_tri = tri.mean(1) @ n - c
-    drop = h_tri < cut
+    h = tri.mean(1) @ n - c
+    drop = h < cut
+    target = _look_at_point(cameras)
+    if target is None:
+        target = np.median(pts, axis=0)
+    return n, c, float(cut), drop | _support_rims(m, n, h, drop, 0.25 * float(target @ n - c))
+
+
+def _support_rims(m, n: np.ndarray, h: np.ndarray, below: np.ndarray, max_height: float,
+                  max_tilt_deg: float = 30.0) -> np.ndarray:
+    """Per triangle of the Open3D mesh ``m``: True on the support's surface that rises above the cut (a bowed or
+    warped board, its rims): triangles that face up like the support (normal within ``max_tilt_deg`` of ``n``,
+    on the side the support's own flat triangles face), lie less than ``max_height`` above the plane (``h``:
+    their heights) and are connected through such triangles to the part ``below`` the cut. An object's sides and
+    underside do not face up, so the growth stops at its foot."""
+    import open3d as o3d
+
+    T = np.asarray(m.triangles)
+    V = np.asarray(m.vertices)
+    tri = V[T]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    cos = (fn @ n) / np.maximum(np.linalg.norm(fn, axis=1), 1e-300)
+    flat_below = below & (np.abs(cos) > np.cos(np.radians(max_tilt_deg)))
+    if not flat_below.any():
+        return np.zeros(len(T), bool)
+    if np.median(cos[flat_below]) < 0:  # the mesh's faces wound the other way: "up" is -n for them
+        cos = -cos
+    cand = (cos > np.cos(np.radians(max_tilt_deg))) & (h < max_height)
+    idx = np.flatnonzero(cand)
+    if not len(idx):
+        return np.zeros(len(T), bool)
+    sub = o3d.geometry.TriangleMesh(m.vertices, o3d.utility.Vector3iVector(T[idx]))
+    labels = np.asarray(sub.cluster_connected_triangles()[0])
+    seeds = np.unique(labels[below[idx]])
+    out = np.zeros(len(T), bool)
+    out[idx[np.isin(labels, seeds)]] = True
+    return out & ~below
+
+
+def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_samples: int = 100_000,
+                   seed: int = 0, found=None, quiet: bool = False) -> dict | None:
+    """Object capture: remove from the Open3D mesh ``m`` (in place) the plane the object stands on and every
+    triangle whose centre lies below the cut above it (``find_support``, or ``found``, its result for this
+    mesh). Logs one line (unless ``quiet``); returns what was removed (metadata: ``support_normal``,
+    ``support_offset``, ``support_cut``, ``support_removed_faces``, ``support_removed_area``) or None (logged)
+    when no support plane is found."""
+    if found is None:
+        found = find_support(m, cameras, voxel, cut, n_samples, seed)
+    if found is None:
+        if not quiet:
+            log.info("object: no support plane found (no large flat part of the surface with every camera on one "
+                     "side and the object on theirs); nothing removed")
+        return None
+    n, c, cut, drop = found
+    V = np.asarray(m.vertices)
+    tri = V[np.asarray(m.triangles)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     removed = float(area[drop].sum())
+    total = float(area.sum())
     m.remove_triangles_by_mask(drop)
     m.remove_unreferenced_vertices()
     info = {"support_normal": ",".join(f"{x:.5f}" for x in n), "support_offset": float(c), "support_cut": float(cut),
             "support_removed_faces": int(drop.sum()), "support_removed_area": removed}
-    log.info("object: support plane %s . X = %.5g found (%.0f%% of the surface within %.3g of it); removed it and "
-             "everything below %.3g above it: %d faces, %.4g of %.4g area (%.0f%%)", info["support_normal"], c,
-             100 * float((np.abs(pts @ n - c) < tol).mean()), tol, cut, int(drop.sum()), removed, float(area.sum()),
-             100 * removed / float(area.sum()))
+    if not quiet:
+        log.info("object: support plane %s . X = %.5g found; removed it and everything below %.3g above it: %d "
+                 "faces, %.4g of %.4g area (%.0f%%)", info["support_normal"], c, cut, int(drop.sum()), removed,
+                 total, 100 * removed / max(total, 1e-300))
     return info
 
 

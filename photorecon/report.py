@@ -484,9 +484,15 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
              "invented area (farther than invent_distance from every observed point)":
                  None if report.get("mesh", {}).get("invented_fraction") is None
                  else f"{100 * report['mesh']['invented_fraction']:.1f}%"}
-    if "support_removed_faces" in report.get("mesh", {}):  # --object
+    scene = report.get("mesh", {}).get("scene")
+    if isinstance(scene, dict):  # --scene: what was detected (or given) and why
+        how = "detected" if scene.get("mode") == "auto" else "given"
+        facts["scene (--scene auto|object|open)"] = (f"{scene.get('detected')} ({how}): {scene.get('reason')}; "
+                                                    + ("support removed" if scene.get("support_removed")
+                                                       else "nothing removed, the ground kept"))
+    if "support_removed_faces" in report.get("mesh", {}):  # an object capture: its support removed
         m = report["mesh"]
-        facts["--object: support plane removed (n . X = c, and everything below the cut above it)"] = (
+        facts["support plane removed (n . X = c, and everything below the cut above it)"] = (
             f"n = ({m['support_normal']}), c = {m['support_offset']:.6g}, cut {m['support_cut']:.4g}: "
             f"{m['support_removed_faces']} faces, area {m['support_removed_area']:.4g}")
     facts.update(extra_rows or {})

@@ -52,8 +52,8 @@ def _near_plane_area(mesh, tol):
 def test_object_removes_the_support_plane_keeps_the_object(on_table, ring):
     obj, fused = on_table
     voxel = float(fused.metadata["voxel_size"])
-    kept = clean(fused, CleanConfig(), cameras=ring)
-    assert _near_plane_area(kept, 1.5 * voxel) > 0.5  # the table is there by default (about 1.9 of ~2.5 visible)
+    kept = clean(fused, CleanConfig(scene="open"), cameras=ring)
+    assert _near_plane_area(kept, 1.5 * voxel) > 0.5  # the table is there with --scene open (about 1.9 of ~2.5 visible)
     # hole filling (on by default) would close the cut-open bottoms with flat patches the truth lacks
     out = clean(fused, CleanConfig(object=True, fill_holes_voxels=0), cameras=ring)
     # the plane found: normal up, at the table's height
@@ -69,7 +69,7 @@ def test_object_removes_the_support_plane_keeps_the_object(on_table, ring):
     # the object kept within a voxel above the cut: what the plain mesh has of it (the parts the cameras saw)
     gt = trimesh.sample.sample_surface(obj, 20_000, seed=1)[0]
     gt = gt[gt[:, 2] > PLANE_Z + cut + voxel]
-    seen = gt[distance_to(clean(fused, CleanConfig(fill_holes_voxels=0), cameras=ring), gt) < voxel]
+    seen = gt[distance_to(clean(fused, CleanConfig(scene="open", fill_holes_voxels=0), cameras=ring), gt) < voxel]
     assert len(seen) > 0.8 * len(gt)
     assert np.mean(distance_to(out, seen) < voxel) > 0.999
     assert out.metadata["support_removed_area"] > 0.5
@@ -122,9 +122,11 @@ def test_fuse_command_with_object_leaves_the_object(tmp_path):
     z_top = float(corners[:, 2].max())
     assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "out"), "--object", "-q"]) == 0
     assert load_mesh(tmp_path / "out" / "mesh.ply").triangles_center[:, 2].min() > z_top
-    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "plain"), "-q"]) == 0
+    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "plain"), "--scene", "open", "-q"]) == 0
     plain = load_mesh(tmp_path / "plain" / "mesh.ply")
-    assert plain.area_faces[np.abs(plain.triangles_center[:, 2] - z_top) < 0.01].sum() > 0.5  # the table, by default
+    assert plain.area_faces[np.abs(plain.triangles_center[:, 2] - z_top) < 0.01].sum() > 0.5  # the table stays
+    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "auto"), "-q"]) == 0  # --scene auto: removed
+    assert load_mesh(tmp_path / "auto" / "mesh.ply").triangles_center[:, 2].min() > z_top
 
 
 def test_report_html_says_what_object_removed(tmp_path):

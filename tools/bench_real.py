@@ -3,10 +3,11 @@
 
 * walnuts/<capture> (12-camera ring, 1280x1024, COLMAP cameras without points, reference.ply in metres):
   accuracy, completeness and F-score at 0.5, 1 and 2 mm against the reference cloud (result samples more
-  than 5 mm outside the reference's box are left out of accuracy: the cables behind the nut). With
+  than 5 mm outside the reference's box are left out of accuracy: the cables behind the nut), the mesh cleaned
+  with the defaults (``--scene auto``: the row's ``scene`` says what was detected and removed). With
   --support-plane also DTU-style, the platform under the nut left out (``support_plane``): the reference
-  cloud has no platform, the photos do. With --object also the same fused mesh cleaned with ``--object``
-  (photorecon's own support-plane removal, ``mesh.remove_support``), scored uncropped.
+  cloud has no platform, the photos do. With --object also the same fused mesh cleaned with ``--scene object``
+  (photorecon's own support-plane removal, ``mesh.remove_support``, without the detection), scored uncropped.
 * herz-jesu-p8, entry-p10 (3072x2048 facades, Strecha ground-truth cameras): the fraction of each image's
   pixels whose depth at least two other views confirm, the fused mesh's face count and the area of the
   ground in front of the facade (``ground_area``: faces within 15 cm of, and facing like, a plane fitted to
@@ -45,6 +46,8 @@ DATA = Path(__file__).resolve().parents[1] / "../shared/data"
 SETS = {
     "walnut1": "walnuts/2016_10_24__17_43_02",
     "walnut2": "walnuts/2016_10_25__12_57_06",
+    "walnut3": "walnuts/2016_10_24__17_44_40",
+    "walnut4": "walnuts/2016_10_25__12_10_52",
     "herz": "herz-jesu-p8",
     "entry": "entry-p10",
 }
@@ -154,12 +157,12 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
     fc = FusionConfig(**{"trunc_voxels": 3.0, **(fusion or {})})
     frames = load_frames(dsd, fc)
     fused = fuse(frames, fc, dsd.model.points)
-    mesh = clean(fused, CleanConfig())
+    mesh = clean(fused, CleanConfig(), cameras=ds.views)  # the defaults: --scene auto
     t_fuse = time.perf_counter() - t1
     export(mesh, work / "mesh.ply")
     obj = None
-    if object_mode:  # the same fused mesh cleaned with --object
-        obj = clean(fused, CleanConfig(object=True), cameras=ds.views)
+    if object_mode:  # the same fused mesh cleaned with --scene object
+        obj = clean(fused, CleanConfig(scene="object"), cameras=ds.views)
         export(obj, work / "mesh_object.ply")
         render_preview(obj, work / "preview_object.png", cameras=ds.views)
     render_preview(mesh, work / "preview.png", cameras=ds.views)
@@ -170,7 +173,8 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
            "mvs_total_s": t_mvs, "mvs_peak_mb": round(peak_mvs),
            "confirmed_2_views_mean": float(np.mean(confirmed)), "confirmed_2_views_min": float(np.min(confirmed)),
            "fusion_s": t_fuse, "voxel": mesh.metadata.get("voxel_size"), "faces": len(mesh.faces),
-           "skipped": rep["skipped"]}
+           "skipped": rep["skipped"], "scene": mesh.metadata.get("scene"),
+           "scene_detected": (mesh.metadata.get("scene") or {}).get("detected")}
     ref = root / "reference.ply"
     if ref.is_file():
         reference = load_reference(ref)
@@ -236,7 +240,7 @@ def main() -> int:
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
         if args.json:
             Path(args.json).write_text(json.dumps({"warm_up_s": warm, "config": asdict(cfg), "fusion": fusion, "rows": rows}, indent=1))
-    cols = ["dataset", "size", "mvs_s_per_view", "mvs_peak_mb", "confirmed_2_views_mean", "faces", "ground_m2",
+    cols = ["dataset", "size", "mvs_s_per_view", "mvs_peak_mb", "confirmed_2_views_mean", "scene_detected", "faces", "ground_m2",
             "acc@1mm", "comp@1mm", "F@0.5mm", "F@1mm", "F@2mm"]
     if args.support_plane:
         cols += ["acc@1mm_above_support", "F@1mm_above_support"]
