@@ -150,18 +150,39 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 
 
+def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
+                 executor=None):
+    """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``.
+    Returns the mesh and its facts (``fusion.fuse_to_files``)."""
+    from .fusion import fuse_to_files, load_frames
+
+    frames = load_frames(ds, fusion_cfg)
+    return fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor, ds,
+                         work_dir)
+
+
+def preview_stage(mesh, ds, layout: Layout) -> None:
+    """``reconstruct``'s preview stage: the mesh decimated for report.html's 3D view (``decimate_for_viewer``)
+    -> ``layout.viewer_mesh``, and preview.png rendered from that copy (a few hundred pixels a side show no
+    more than its faces)."""
+    from .mesh import export
+    from .preview import render_preview
+
+    small = decimate_for_viewer(mesh, VIEWER_MAX_FACES)
+    export(small, layout.viewer_mesh)
+    render_preview(small, layout.preview, cameras=ds.views)
+
+
 def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
                 overwrite: bool = False) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
     from .depth.mvs import run_mvs
-    from .fusion import fuse_to_files, load_frames
     from .io.colmap_text import write_colmap_text
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
     from .io.output import prepare_output
     from .ingest import VIDEO_SUFFIXES
-    from .mesh import export, load_mesh, parse_formats
-    from .preview import render_preview
+    from .mesh import load_mesh, parse_formats
     from .scale import given_units, scale_output
     from .sfm import run_sfm
 
@@ -266,15 +287,12 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         fused = {}
 
         def fusion() -> dict:
-            frames = load_frames(ds, cfgs.fusion)
-            fused["mesh"], info = fuse_to_files(frames, cfgs.fusion, cfgs.clean, layout, formats, ds.views,
-                                                ds.model.points, executor(), ds, work / "fusion")
+            fused["mesh"], info = fusion_stage(ds, cfgs.fusion, cfgs.clean, layout, formats, work / "fusion",
+                                               executor())
             return info
 
         def preview() -> None:
-            mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
-            render_preview(mesh, layout.preview, cameras=ds.views)
-            export(decimate_for_viewer(mesh, VIEWER_MAX_FACES), layout.viewer_mesh)  # report.html's 3D view
+            preview_stage(fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0])), ds, layout)
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats])
