@@ -43,7 +43,7 @@ from numba import njit, prange
 from .cameras import View, backproject_depth, camera_center
 from .errors import BadArgumentError, EmptyMeshError, InputDataError, NoDepthError
 from .progress import bar
-from .resources import available_bytes
+from .resources import available_bytes, release_memory
 
 log = logging.getLogger("photorecon")
 
@@ -570,6 +570,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
             _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
         V, F, C = _extract(vbg, cfg)
         del vbg
+        release_memory()
         if lo is not None and len(F):
             block = voxel * _BLOCK_RES
             cen = V[F].mean(axis=1)
@@ -1200,18 +1201,33 @@ def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: i
     cells of the mesher (Poisson octree cell, TSDF voxel), at least three pixel footprints."""
     from scipy.spatial import cKDTree
 
-    from .mesh import boundary_edges
-    from .metrics import sample_surface
+    from .mesh import edge_use_counts
 
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     footprint = pixel_footprint(frames)
     cell = float(mesh.metadata.get("poisson_cell") or mesh.metadata.get("voxel_size") or 0.0)
     tau = max(2 * cell, 3 * footprint)
     obs = observed_points(frames, tau / 2)
-    pts, _ = sample_surface(mesh, n_samples)
+    pts = _area_samples(np.asarray(mesh.vertices), np.asarray(mesh.faces), n_samples)
     dist, _ = cKDTree(obs).query(pts, k=1, distance_upper_bound=tau)
-    return {"watertight": bool(mesh.is_watertight), "boundary_edges": boundary_edges(mesh),
+    counts = edge_use_counts(mesh.faces)
+    return {"watertight": bool(len(counts) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "invented_fraction": float(np.mean(~np.isfinite(dist))), "invent_distance": tau}
+
+
+def _area_samples(V: np.ndarray, F: np.ndarray, n: int, seed: int = 0, block: int = 1 << 20) -> np.ndarray:
+    """``n`` area-uniform points on the triangles (V, F), the face areas computed a block of faces at a time
+    (no per-face triangle array of the whole mesh)."""
+    area = np.empty(len(F))
+    for s in range(0, len(F), block):
+        t = V[F[s:s + block]]
+        area[s:s + block] = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    rng = np.random.default_rng(seed)
+    cum = np.cumsum(area)
+    face = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1]), len(F) - 1)
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    t = V[F[face]]
+    return t[:, 0] * (1 - r1)[:, None] + t[:, 1] * (r1 * (1 - r2))[:, None] + t[:, 2] * (r1 * r2)[:, None]
 
 
 def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None, executor=None,
@@ -1285,6 +1301,8 @@ def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
     if normal is not None and normal.shape != raw.shape + (3,):
         raise InputDataError(f"view {v.name}: normal map has shape {normal.shape}, its depth map {raw.shape}; "
                              "expected (H, W, 3)")
+    if normal is not None:
+        normal = normal.astype(np.float16)  # as PatchMatch writes them: half the memory of a frame's largest map
     return DepthFrame(dv, depth, color, conf, normal)
 
 
@@ -1349,9 +1367,14 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     ``surface_report``: watertight, boundary edges, invented fraction), which are also logged."""
     from .mesh import clean, export
 
-    mesh = clean(fuse(frames, cfg, sparse_points, executor, dataset, work_dir), clean_cfg, cameras=cameras)
+    fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
+    release_memory()  # the grid's freed pages: the cleaning's peak would stack on them
+    mesh = clean(fused, clean_cfg, cameras=cameras)
+    del fused
+    release_memory()
     for fmt in formats:
         export(mesh, layout.mesh(fmt))
+    release_memory()
     surface = surface_report(mesh, frames)
     log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
              "invented", len(frames), len(mesh.vertices), len(mesh.faces), surface["watertight"],

@@ -168,7 +168,10 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
     from .mesh import export
     from .preview import render_preview
 
+    from .resources import release_memory
+
     small = decimate_for_viewer(mesh, VIEWER_MAX_FACES)
+    release_memory()
     export(small, layout.viewer_mesh)
     render_preview(small, layout.preview, cameras=ds.views)
 
@@ -266,7 +269,8 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 elif source == "mvs":
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
-                            "seconds_per_view": rep["seconds_per_view"]}
+                            "seconds_per_view": rep["seconds_per_view"],
+                            "triangulation_seconds": rep["triangulation_seconds"]}
                 else:
                     # depth maps in the given cameras' units scale with them (--marker-size, GPS)
                     factor = stages.info["poses"].get("scale", {}).get("factor", 1.0) if run.poses else 1.0

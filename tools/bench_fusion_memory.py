@@ -102,7 +102,18 @@ def child(args) -> dict:
     from photorecon.fusion import FusionConfig
     from photorecon.layout import Layout
     from photorecon.mesh import CleanConfig
-    from photorecon.pipeline import StageConfigs, fusion_stage, preview_stage
+    from photorecon.pipeline import StageConfigs
+    try:
+        from photorecon.pipeline import fusion_stage, preview_stage
+    except ImportError:  # a photorecon without them: the same calls as its reconstruct
+        from photorecon.fusion import fuse_to_files, load_frames
+
+        def fusion_stage(ds, f, c, layout, formats, work):
+            return fuse_to_files(load_frames(ds, f), f, c, layout, formats, ds.views, ds.model.points, None, ds, work)
+
+        def preview_stage(mesh, ds, layout):
+            preview_mod.render_preview(mesh, layout.preview, cameras=ds.views)
+            mesh_mod.export(report_mod.decimate_for_viewer(mesh, report_mod.VIEWER_MAX_FACES), layout.viewer_mesh)
     from photorecon.resources import measure
 
     progress.set_enabled(False)
