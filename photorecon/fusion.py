@@ -526,9 +526,11 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     if not frames:
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
     budget = cfg.grid_budget_gb * (1 << 30) if cfg.grid_budget_gb else 0
-    # chunks bound the grid: the voxel is coarsened only when one chunk's worth of blocks would not fit either
+    # chunks bound the grid, so an automatic voxel (bounded by the depth maps' pixel footprint) is not
+    # coarsened for the whole grid's size; a given --voxel-size is still refused when the whole grid would not fit
+    auto = budget and cfg.voxel_size is None
     voxel, n_blocks = tsdf_voxel_size(frames, replace(cfg, memory_limit_gb=cfg.memory_limit_gb or 1e6)
-                                      if budget else cfg, sparse_points)
+                                      if auto else cfg, sparse_points)
     trunc = cfg.trunc_voxels * voxel
     depth_max = _depth_max(frames, trunc)
     probe = _new_grid(voxel, 64)
@@ -980,8 +982,11 @@ def _point_cloud(frames: list[DepthFrame], spacing: float, with_normals: bool = 
 
 def observed_points(frames: list[DepthFrame], spacing: float) -> np.ndarray:
     """The depth maps' world points, every k-th pixel in both directions so that neighbours lie about
-    ``spacing`` apart on the surface each camera looks at: what the cameras observed."""
-    pts = []
+    ``spacing`` apart on the surface each camera looks at: what the cameras observed. Views that see the same
+    surface add no points there: one point per cell of ``spacing / 2`` is kept (the first view's), so the
+    count follows the observed area, not the number of views."""
+    cell = spacing / 2
+    keys, pts = np.zeros(0, np.int64), np.zeros((0, 3))
     for f in frames:
         z = f.depth[f.depth > 0]
         if not z.size:
@@ -989,8 +994,10 @@ def observed_points(frames: list[DepthFrame], spacing: float) -> np.ndarray:
         step = max(1, int(spacing / (float(np.median(z)) / f.view.intrinsics.fx)))
         sub = np.zeros_like(f.depth)
         sub[::step, ::step] = f.depth[::step, ::step]
-        pts.append(backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world))
-    return np.concatenate(pts) if pts else np.zeros((0, 3))
+        p = backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world)
+        keys, first = np.unique(np.concatenate([keys, _cell_keys(p, cell)]), return_index=True)
+        pts = np.concatenate([pts, p])[first]
+    return pts
 
 
 def _poisson(cloud, depth: int):

@@ -109,6 +109,7 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     if not len(m.triangles):
         raise EmptyMeshError("cleaning left no triangle (everything cropped or in small components)")
     out = from_open3d(m)
+    del m  # the Open3D copy: the hole filling makes its own
     hole = cfg.fill_holes
     if not hole > 0 and cfg.fill_holes_voxels > 0 and mesh.metadata.get("voxel_size"):
         hole = cfg.fill_holes_voxels * float(mesh.metadata["voxel_size"])  # the pinholes of a TSDF surface
