@@ -572,7 +572,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
             _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
         V, F, C = _extract(vbg, cfg)
         del vbg
-        release_memory()
+        release_memory(collect=False)  # the grid is freed by reference counting
         if lo is not None and len(F):
             block = voxel * _BLOCK_RES
             cen = V[F].mean(axis=1)

@@ -170,6 +170,7 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
 
     from .resources import release_memory
 
+    release_memory()  # what the fusion stage freed (its frames, the grids)
     small = decimate_for_viewer(mesh, VIEWER_MAX_FACES)
     release_memory()
     export(small, layout.viewer_mesh)

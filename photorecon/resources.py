@@ -69,13 +69,14 @@ def measure(record: dict, key: str):
                        "cpu_seconds": round(time.process_time() - c0, 2)}
 
 
-def release_memory() -> None:
-    """Hand freed memory back to the system: a garbage collection, then glibc's ``malloc_trim`` (where there
-    is glibc). Large meshes and grids are freed into malloc's pools, which otherwise keep the pages resident,
-    so the peak of the next step would stack on them."""
+def release_memory(collect: bool = True) -> None:
+    """Hand freed memory back to the system: a garbage collection (``collect``; about 0.1 s with many Python
+    objects alive), then glibc's ``malloc_trim`` (where there is glibc). Large meshes and grids are freed into
+    malloc's pools, which otherwise keep the pages resident, so the peak of the next step would stack on them."""
     import gc
 
-    gc.collect()
+    if collect:
+        gc.collect()
     try:
         import ctypes
 
