@@ -696,3 +696,24 @@ def _run_texture(args):
           f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "
           "texture.png), mesh.glb, preview.png")
     return 0
+
+
+@command
+def warmup(sub):
+    p = sub.add_parser("warmup", help="compile the numba kernels once, into numba's cache (tools/install.sh runs it)",
+                       description="Compiles every compiled kernel (PatchMatch, TSDF) on a tiny synthetic scene, so "
+                                   "numba's cache holds them (the __pycache__ folders next to the package's modules, "
+                                   "or NUMBA_CACHE_DIR) and later runs load them instead of compiling them.")
+    p.set_defaults(func=_run_warmup)
+
+
+def _run_warmup(args):
+    from .warmup import warm_up
+
+    r = warm_up()
+    how = (f"{len(r['compiled'])} compiled, {len(r['cached'])} already in numba's cache" if r["compiled"]
+           else "all already in numba's cache")
+    print(f"warmup: {r['kernels']} kernels ({how}) in {r['seconds']:.1f} s")
+    if r["missing"]:
+        print("  not reached (compiled on first use instead): " + ", ".join(r["missing"]))
+    return 0

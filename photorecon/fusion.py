@@ -43,7 +43,7 @@ from numba import njit, prange
 from .cameras import View, backproject_depth, camera_center
 from .errors import BadArgumentError, EmptyMeshError, InputDataError, NoDepthError
 from .progress import bar
-from .resources import available_bytes
+from .resources import available_bytes, release_memory
 
 log = logging.getLogger("photorecon")
 
@@ -71,6 +71,7 @@ class FusionConfig:
     max_stretch: float = field(default=8.0, metadata={"help": "grid: reject triangles whose edge exceeds this many pixel footprints", "range": (0.0, 10_000.0), "exclusive_min": True})
     chunk_voxels: int | None = field(default=None, metadata={"help": "TSDF in cubic chunks of this many voxels a side, one task each (default: one volume; 256 with --cluster)", "range": (16, 65536)})
     memory_limit_gb: float | None = field(default=None, metadata={"help": "refuse a voxel grid above this size, GB (default: 60%% of free memory)", "range": (0.0, 1e6), "exclusive_min": True})
+    grid_budget_gb: float | None = field(default=0.5, metadata={"help": "TSDF: largest voxel grid held at once, GB; a larger scene is fused in chunks that each fit (same mesh; 0 = one grid)", "range": (0.0, 1e6)})
     poisson_depth: int = field(default=0, metadata={"help": "poisson: octree depth (0 = a cell of about 2 pixel footprints, depth 5 to 10)", "range": (0, 16)})
     poisson_trim: float = field(default=0.02, metadata={"help": "poisson: drop the surface where the sample density is below this quantile of the vertices' densities (0 = off)", "range": (0.0, 1.0)})
     watertight: bool = field(default=False, metadata={"help": "poisson: close what the cameras never saw into one watertight surface; report.json says how much area was invented"})
@@ -438,11 +439,14 @@ def planar_normals(f: DepthFrame, trunc: float, min_cos: float, tol: float, min_
     return out
 
 
-def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float,
-                     blocks: tuple[np.ndarray, np.ndarray] | None = None) -> int:
-    """Integrate one frame into ``vbg`` (confidence-weighted when it has a confidence map); only the blocks it
-    touches, and with ``blocks`` = (lo, hi) block coordinates only those with lo <= key < hi (a chunk).
-    Returns the number of blocks integrated."""
+def _frame_blocks(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float
+                  ) -> tuple[DepthFrame, np.ndarray, bool]:
+    """What integrating ``f`` takes: the frame as integrated (normals kept only where ``planar_normals``
+    justifies them; weight 1 per valid pixel where the tangent-plane SDF needs the compiled kernel and the
+    frame has no confidence map), the (M, 3) int32 coordinates of the blocks it writes (Open3D's truncation
+    band along the rays, widened by ``_normal_band_blocks``), and whether the compiled weighted kernel
+    integrates it (else Open3D's ``integrate``). ``vbg`` serves Open3D's block search only (any grid with
+    this voxel)."""
     import open3d as o3d
     import open3d.core as o3c
 
@@ -453,28 +457,52 @@ def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_
     K = o3c.Tensor(intr.K, o3c.float64)
     T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
     depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
-    coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+    coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels)).numpy()
     weighted = f.confidence is not None and cfg.confidence_weights
     if cfg.normal_sdf > 0 and f.normal is not None:
         if cfg.normal_sdf_plane_tol > 0:
             f = replace(f, normal=planar_normals(f, trunc, cfg.normal_sdf, cfg.normal_sdf_plane_tol * voxel))
-        coords = o3c.Tensor(_normal_band_blocks(f, coords.numpy(), voxel, trunc, cfg.normal_sdf))
+        coords = _normal_band_blocks(f, coords, voxel, trunc, cfg.normal_sdf)
         if not weighted:  # the compiled kernel with weight 1: Open3D's integrate measures along the ray
             f = replace(f, confidence=(f.depth > 0).astype(np.float32))
             weighted = True
-    if blocks is not None:
-        c = coords.numpy()
-        keep = np.all((c >= blocks[0]) & (c < blocks[1]), axis=1)
-        if not keep.any():
-            return 0
-        coords = o3c.Tensor(np.ascontiguousarray(c[keep]))
+    return f, np.ascontiguousarray(coords, np.int32), weighted
+
+
+def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cfg: FusionConfig, voxel: float,
+                      depth_max: float) -> None:
+    """Integrate the frame ``f`` (from ``_frame_blocks``) into the blocks ``coords`` of ``vbg``."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    if not len(coords):
+        return
+    c = o3c.Tensor(np.ascontiguousarray(coords, np.int32))
     if weighted:
-        _integrate_weighted(vbg, coords, f, voxel, trunc, depth_max, cfg.normal_sdf)
-    else:
-        color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
-        color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
-        vbg.integrate(coords, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
-    return int(coords.shape[0])
+        _integrate_weighted(vbg, c, f, voxel, cfg.trunc_voxels * voxel, depth_max, cfg.normal_sdf)
+        return
+    K = o3c.Tensor(f.view.intrinsics.K, o3c.float64)
+    T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
+    depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
+    color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
+    color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
+    vbg.integrate(c, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+
+
+def _in_box(coords: np.ndarray, lo, hi) -> np.ndarray:
+    return np.all((coords >= lo) & (coords < hi), axis=1)
+
+
+def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float,
+                     blocks: tuple[np.ndarray, np.ndarray] | None = None) -> int:
+    """Integrate one frame into ``vbg`` (confidence-weighted when it has a confidence map); only the blocks it
+    touches, and with ``blocks`` = (lo, hi) block coordinates only those with lo <= key < hi (a chunk).
+    Returns the number of blocks integrated."""
+    f, coords, weighted = _frame_blocks(vbg, f, cfg, voxel, depth_max)
+    if blocks is not None:
+        coords = coords[_in_box(coords, blocks[0], blocks[1])]
+    _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
+    return int(len(coords))
 
 
 def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -489,25 +517,102 @@ def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
-    """Integrate ``frames`` into a VoxelBlockGrid and extract a coloured triangle mesh."""
+    """Integrate ``frames`` into a VoxelBlockGrid and extract a coloured triangle mesh.
+
+    First every frame's blocks are found (``_frame_blocks``; kept: its block coordinates, and its normals'
+    ``planar_normals`` mask as one bit per pixel). When all the blocks fit in ``cfg.grid_budget_gb`` the grid
+    holds them all; else space is cut into cubic chunks that each fit, and each chunk (with one block layer
+    around it) is integrated from the frames in their order and meshed, keeping the triangles whose centroid
+    lies in its core: the same voxels, values and triangles as one grid (``tsdf_fuse_chunked`` does the same
+    from disk, one task per chunk). Memory: the frames, one chunk's grid and the mesh, whatever the scene's
+    extent."""
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     if not frames:
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
-    voxel, n_blocks = tsdf_voxel_size(frames, cfg, sparse_points)
+    budget = cfg.grid_budget_gb * (1 << 30) if cfg.grid_budget_gb else 0
+    # chunks bound the grid, so an automatic voxel (bounded by the depth maps' pixel footprint) is not
+    # coarsened for the whole grid's size; a given --voxel-size is still refused when the whole grid would not fit
+    auto = budget and cfg.voxel_size is None
+    voxel, n_blocks = tsdf_voxel_size(frames, replace(cfg, memory_limit_gb=cfg.memory_limit_gb or 1e6)
+                                      if auto else cfg, sparse_points)
     trunc = cfg.trunc_voxels * voxel
-    log.debug("tsdf: voxel %.5g, truncation %.5g, ~%d blocks", voxel, trunc, n_blocks)
-    vbg = _new_grid(voxel, n_blocks)
     depth_max = _depth_max(frames, trunc)
-    for f in bar(frames, desc="tsdf fusion"):
-        _integrate_frame(vbg, f, cfg, voxel, depth_max)
-    V, F, colors = _extract(vbg, cfg)
-    if len(F) == 0:
+    probe = _new_grid(voxel, 64)
+    plans = []  # per frame: (coords, planar-normal mask or None, weighted)
+    for f in bar(frames, desc="tsdf blocks"):
+        g, coords, weighted = _frame_blocks(probe, f, cfg, voxel, depth_max)
+        keep = None
+        if g.normal is not None and g.normal is not f.normal:
+            keep = np.packbits(np.any(g.normal != 0, axis=2), axis=None)
+        plans.append((coords, keep, weighted))
+    del probe
+    allb = np.unique(np.concatenate([p[0] for p in plans]), axis=0)
+    per_block = _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # storage, and marching cubes' buffers
+    chunk = None
+    if budget and len(allb) * per_block > budget:
+        chunk = _chunk_size(allb, max(1, int(budget // per_block)))
+    log.debug("tsdf: voxel %.5g, truncation %.5g, %d blocks, %s", voxel, trunc, len(allb),
+              f"chunks of {chunk}^3 blocks" if chunk else "one grid")
+    if chunk is None:
+        boxes = [(None, None, len(allb))]
+    else:
+        ids = np.unique(np.floor_divide(allb, chunk), axis=0)
+        boxes = [(i * chunk, (i + 1) * chunk, None) for i in ids]
+    pieces = []
+    for lo, hi, count in bar(boxes, desc="tsdf fusion", unit="chunk") if chunk else boxes:
+        if count is None:
+            count = int(_in_box(allb, lo - 1, hi + 1).sum())
+        vbg = _new_grid(voxel, int(count * 1.05) + 64)
+        for f, (coords, keep, weighted) in zip(bar(frames, desc="tsdf fusion") if not chunk else frames, plans):
+            if lo is not None:
+                coords = coords[_in_box(coords, lo - 1, hi + 1)]
+                if not len(coords):
+                    continue
+            if keep is not None:
+                mask = np.unpackbits(keep, count=f.depth.size).reshape(f.depth.shape).astype(bool)
+                f = replace(f, normal=np.where(mask[..., None], np.asarray(f.normal, np.float32), np.float32(0)))
+            if weighted and f.confidence is None:
+                f = replace(f, confidence=(f.depth > 0).astype(np.float32))
+            _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
+        V, F, C = _extract(vbg, cfg)
+        del vbg
+        release_memory(collect=False)  # the grid is freed by reference counting
+        if lo is not None and len(F):
+            block = voxel * _BLOCK_RES
+            cen = V[F].mean(axis=1)
+            F = F[np.all((cen >= lo * block) & (cen < hi * block), axis=1)]
+            used = np.unique(F)
+            remap = np.full(len(V), -1, np.int64)
+            remap[used] = np.arange(len(used))
+            V, F, C = V[used], remap[F], (C[used] if C is not None else None)
+        pieces.append((V.astype(np.float32), F.astype(np.int32), C))
+    if sum(len(p[1]) for p in pieces) == 0:
         raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "
                              "(lower --weight-threshold or use a larger --voxel-size)")
-    out = trimesh.Trimesh(V, F, vertex_colors=colors, process=False)
+    if chunk is None:
+        V, F, C = pieces[0]
+        out = trimesh.Trimesh(V.astype(np.float64), F.astype(np.int64), vertex_colors=C, process=False)
+    else:
+        out = stitch_pieces(pieces)
     out.metadata["voxel_size"] = voxel
     out.metadata["mesher"] = "tsdf"
+    out.metadata["chunks"] = len(boxes) if chunk else 1
     return out
+
+
+def _chunk_size(blocks: np.ndarray, max_blocks: int) -> int:
+    """The largest cubic chunk size (in blocks, a power of two) whose fullest chunk, with the one block layer
+    around it, holds at most ``max_blocks`` of ``blocks`` (at least 2)."""
+    span = int((blocks.max(0) - blocks.min(0)).max()) + 1
+    size = 1 << max(1, int(np.ceil(np.log2(max(span, 2)))))
+    while size > 2:
+        ids, counts = np.unique(np.floor_divide(blocks, size), axis=0, return_counts=True)
+        worst = ids[np.argmax(counts)]
+        if counts.max() * ((size + 2) / size) ** 2 <= max_blocks and \
+                _in_box(blocks, worst * size - 1, (worst + 1) * size + 1).sum() <= max_blocks:
+            break
+        size //= 2
+    return size
 
 
 # --- TSDF in spatial chunks (one task each: in-process or on a Dask cluster) -------------------------------
@@ -881,8 +986,11 @@ def _point_cloud(frames: list[DepthFrame], spacing: float, with_normals: bool = 
 
 def observed_points(frames: list[DepthFrame], spacing: float) -> np.ndarray:
     """The depth maps' world points, every k-th pixel in both directions so that neighbours lie about
-    ``spacing`` apart on the surface each camera looks at: what the cameras observed."""
-    pts = []
+    ``spacing`` apart on the surface each camera looks at: what the cameras observed. Views that see the same
+    surface add no points there: one point per cell of ``spacing / 2`` is kept (the first view's), so the
+    count follows the observed area, not the number of views."""
+    cell = spacing / 2
+    keys, pts = np.zeros(0, np.int64), np.zeros((0, 3))
     for f in frames:
         z = f.depth[f.depth > 0]
         if not z.size:
@@ -890,8 +998,10 @@ def observed_points(frames: list[DepthFrame], spacing: float) -> np.ndarray:
         step = max(1, int(spacing / (float(np.median(z)) / f.view.intrinsics.fx)))
         sub = np.zeros_like(f.depth)
         sub[::step, ::step] = f.depth[::step, ::step]
-        pts.append(backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world))
-    return np.concatenate(pts) if pts else np.zeros((0, 3))
+        p = backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world)
+        keys, first = np.unique(np.concatenate([keys, _cell_keys(p, cell)]), return_index=True)
+        pts = np.concatenate([pts, p])[first]
+    return pts
 
 
 def _poisson(cloud, depth: int):
@@ -1102,18 +1212,33 @@ def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: i
     cells of the mesher (Poisson octree cell, TSDF voxel), at least three pixel footprints."""
     from scipy.spatial import cKDTree
 
-    from .mesh import boundary_edges
-    from .metrics import sample_surface
+    from .mesh import edge_use_counts
 
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     footprint = pixel_footprint(frames)
     cell = float(mesh.metadata.get("poisson_cell") or mesh.metadata.get("voxel_size") or 0.0)
     tau = max(2 * cell, 3 * footprint)
     obs = observed_points(frames, tau / 2)
-    pts, _ = sample_surface(mesh, n_samples)
+    pts = _area_samples(np.asarray(mesh.vertices), np.asarray(mesh.faces), n_samples)
     dist, _ = cKDTree(obs).query(pts, k=1, distance_upper_bound=tau)
-    return {"watertight": bool(mesh.is_watertight), "boundary_edges": boundary_edges(mesh),
+    counts = edge_use_counts(mesh.faces)
+    return {"watertight": bool(len(counts) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "invented_fraction": float(np.mean(~np.isfinite(dist))), "invent_distance": tau}
+
+
+def _area_samples(V: np.ndarray, F: np.ndarray, n: int, seed: int = 0, block: int = 1 << 20) -> np.ndarray:
+    """``n`` area-uniform points on the triangles (V, F), the face areas computed a block of faces at a time
+    (no per-face triangle array of the whole mesh)."""
+    area = np.empty(len(F))
+    for s in range(0, len(F), block):
+        t = V[F[s:s + block]]
+        area[s:s + block] = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    rng = np.random.default_rng(seed)
+    cum = np.cumsum(area)
+    face = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1]), len(F) - 1)
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    t = V[F[face]]
+    return t[:, 0] * (1 - r1)[:, None] + t[:, 1] * (r1 * (1 - r2))[:, None] + t[:, 2] * (r1 * r2)[:, None]
 
 
 def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None, executor=None,
@@ -1187,6 +1312,8 @@ def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
     if normal is not None and normal.shape != raw.shape + (3,):
         raise InputDataError(f"view {v.name}: normal map has shape {normal.shape}, its depth map {raw.shape}; "
                              "expected (H, W, 3)")
+    if normal is not None:
+        normal = normal.astype(np.float16)  # as PatchMatch writes them: half the memory of a frame's largest map
     return DepthFrame(dv, depth, color, conf, normal)
 
 
@@ -1237,7 +1364,9 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
         with executor(cluster) as ex:
             mesh, _ = fuse_to_files(frames, cfg, clean_cfg or CleanConfig(), layout, formats, cameras,
                                     ds.model.points, ex, ds, layout.work)
-        render_preview(mesh, layout.preview, cameras=cameras)
+        from .report import decimate_for_viewer
+
+        render_preview(decimate_for_viewer(mesh), layout.preview, cameras=cameras)  # a few hundred pixels a side
         return layout.mesh("ply")
 
 
@@ -1249,9 +1378,14 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     ``surface_report``: watertight, boundary edges, invented fraction), which are also logged."""
     from .mesh import clean, export
 
-    mesh = clean(fuse(frames, cfg, sparse_points, executor, dataset, work_dir), clean_cfg, cameras=cameras)
+    fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
+    release_memory()  # the grid's freed pages: the cleaning's peak would stack on them
+    mesh = clean(fused, clean_cfg, cameras=cameras)
+    del fused
+    release_memory()
     for fmt in formats:
         export(mesh, layout.mesh(fmt))
+    release_memory()
     surface = surface_report(mesh, frames)
     log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
              "invented", len(frames), len(mesh.vertices), len(mesh.faces), surface["watertight"],

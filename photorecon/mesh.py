@@ -117,6 +117,7 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     if not len(m.triangles):
         raise EmptyMeshError("cleaning left no triangle (everything cropped or in small components)")
     out = from_open3d(m)
+    del m  # the Open3D copy: the hole filling makes its own
     hole = cfg.fill_holes
     if not hole > 0 and cfg.fill_holes_voxels > 0 and mesh.metadata.get("voxel_size"):
         hole = cfg.fill_holes_voxels * float(mesh.metadata["voxel_size"])  # the pinholes of a TSDF surface
@@ -133,6 +134,39 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     return out
 
 
+def triangle_components(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of triangles that share an edge (as Open3D's ``cluster_connected_triangles``):
+    (per-triangle label (F,), per-component area (C,)). Built from one sorted int64 key per face edge and a
+    sparse face graph, a few tens of bytes per face (Open3D's edge map took about 400 per face)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = len(T)
+    if not F:
+        return np.zeros(0, np.int64), np.zeros(0)
+    n = int(T.max()) + 1
+    keys = np.empty(3 * F, np.int64)
+    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
+        a, b = T[:, i].astype(np.int64), T[:, j].astype(np.int64)
+        keys[k * F:(k + 1) * F] = np.minimum(a, b) * n + np.maximum(a, b)
+    order = np.argsort(keys, kind="stable")
+    same = keys[order[1:]] == keys[order[:-1]]
+    del keys
+    face = order % F
+    del order
+    u, v = face[:-1][same].astype(np.int32), face[1:][same].astype(np.int32)  # faces sharing an edge, chained
+    del face, same
+    graph = coo_matrix((np.ones(len(u), np.int8), (u, v)), shape=(F, F)).tocsr()
+    del u, v
+    _, labels = connected_components(graph, directed=False)
+    del graph
+    area = np.empty(F)
+    for s in range(0, F, block):
+        t = V[T[s:s + block]]
+        area[s:s + block] = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    return labels.astype(np.int64), np.bincount(labels, weights=area)
+
+
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
     """Per triangle of the Open3D mesh ``m``: True where it belongs to debris or a floater.
 
@@ -144,8 +178,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     are details and kept, unless below ``min_detail`` of the largest (debris)."""
     from scipy.spatial import cKDTree
 
-    labels, _counts, areas = m.cluster_connected_triangles()
-    labels, areas = np.asarray(labels), np.asarray(areas, float)
+    labels, areas = triangle_components(np.asarray(m.vertices), np.asarray(m.triangles))
     n = len(areas)
     if n < 2:
         return np.zeros(len(labels), bool)
@@ -170,8 +203,10 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
             size = min(size, float(np.median(np.linalg.norm(cams - mid, axis=1))))
         tree = cKDTree(V[main_v])
         rng = np.random.default_rng(0)
+        order = np.argsort(labels, kind="stable")
+        bounds = np.searchsorted(labels[order], np.arange(n + 1))
         for c in small:
-            verts = np.unique(T[labels == c])
+            verts = np.unique(T[order[bounds[c]:bounds[c + 1]]])
             if len(verts) > 2000:
                 verts = rng.choice(verts, 2000, replace=False)
             gap = float(tree.query(V[verts], k=1)[0].min())
@@ -453,13 +488,26 @@ def _weighted_percentile(x: np.ndarray, w: np.ndarray, q: float) -> np.ndarray:
     return out
 
 
+def edge_use_counts(faces: np.ndarray) -> np.ndarray:
+    """How many faces use each distinct (undirected) edge of ``faces`` (F, 3): one int64 key per face edge,
+    sorted in place, no (E, 2) edge arrays (a few bytes per face edge on a mesh of millions of faces)."""
+    F = np.asarray(faces)
+    if not len(F):
+        return np.zeros(0, np.int64)
+    n = int(F.max()) + 1
+    m = len(F)
+    keys = np.empty(3 * m, np.int64)
+    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
+        a, b = F[:, i].astype(np.int64), F[:, j].astype(np.int64)
+        keys[k * m:(k + 1) * m] = np.minimum(a, b) * n + np.maximum(a, b)
+    keys.sort()
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    return np.diff(np.r_[starts, len(keys)])
+
+
 def boundary_edges(mesh: trimesh.Trimesh) -> int:
     """Number of edges used by exactly one face (the rims of holes; 0 for a closed surface)."""
-    if not len(mesh.faces):
-        return 0
-    e = np.sort(np.asarray(mesh.faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(e[:, 0] * (int(e.max()) + 1) + e[:, 1], return_counts=True)
-    return int((counts == 1).sum())
+    return int((edge_use_counts(mesh.faces) == 1).sum())
 
 
 def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:

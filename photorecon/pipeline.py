@@ -167,6 +167,33 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 
 
+def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
+                 executor=None):
+    """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``.
+    Returns the mesh and its facts (``fusion.fuse_to_files``)."""
+    from .fusion import fuse_to_files, load_frames
+
+    frames = load_frames(ds, fusion_cfg)
+    return fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor, ds,
+                         work_dir)
+
+
+def preview_stage(mesh, ds, layout: Layout) -> None:
+    """``reconstruct``'s preview stage: the mesh decimated for report.html's 3D view (``decimate_for_viewer``)
+    -> ``layout.viewer_mesh``, and preview.png rendered from that copy (a few hundred pixels a side show no
+    more than its faces)."""
+    from .mesh import export
+    from .preview import render_preview
+
+    from .resources import release_memory
+
+    release_memory()  # what the fusion stage freed (its frames, the grids)
+    small = decimate_for_viewer(mesh, VIEWER_MAX_FACES)
+    release_memory()
+    export(small, layout.viewer_mesh)
+    render_preview(small, layout.preview, cameras=ds.views)
+
+
 def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
                 overwrite: bool = False) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
@@ -274,7 +301,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                 elif source == "mvs":
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
-                            "seconds_per_view": rep["seconds_per_view"]}
+                            "seconds_per_view": rep["seconds_per_view"],
+                            "triangulation_seconds": rep["triangulation_seconds"]}
                     written = sorted(rep["per_view"])
                 else:
                     # depth maps in the given cameras' units scale with them (--marker-size, GPS)
@@ -297,15 +325,12 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         fused = {}
 
         def fusion() -> dict:
-            frames = load_frames(ds, cfgs.fusion)
-            fused["mesh"], info = fuse_to_files(frames, cfgs.fusion, cfgs.clean, layout, formats, ds.views,
-                                                ds.model.points, executor(), ds, work / "fusion")
+            fused["mesh"], info = fusion_stage(ds, cfgs.fusion, cfgs.clean, layout, formats, work / "fusion",
+                                               executor())
             return info
 
         def preview() -> None:
-            mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
-            render_preview(mesh, layout.preview, cameras=ds.views)
-            export(decimate_for_viewer(mesh, VIEWER_MAX_FACES), layout.viewer_mesh)  # report.html's 3D view
+            preview_stage(fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0])), ds, layout)
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats])

@@ -474,7 +474,7 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
     rows = []
     for stage, s in report.get("stages", {}).items():
         rows.append(f"<tr><td>{html.escape(stage)}</td><td>{s.get('seconds', 0):.2f}</td>"
-                    f"<td>{s.get('peak_mb', '')}</td><td>{'cached' if s.get('cached') else ''}</td></tr>")
+                    f"<td>{s.get('cpu_seconds', '')}</td><td>{s.get('peak_mb', '')}</td><td>{'cached' if s.get('cached') else ''}</td></tr>")
     facts = {"registered images": report.get("poses", {}).get("registered"),
              "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
              "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
@@ -508,7 +508,7 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
 <h2>3D view</h2>{_viewer_section(out)}
 <h2>Mesh</h2>{_img_tag(out / 'preview.png')}
 <h2>Summary</h2><table>{fact_rows}</table>
-<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>peak MB</th><th></th></tr>{''.join(rows)}</table>
+<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>CPU seconds</th><th>peak MB</th><th></th></tr>{''.join(rows)}</table>
 <h2>Depth maps</h2><div>{depth_imgs}</div>
 <h2>Warnings</h2><ul>{warn}</ul>
 <h2>Parameters</h2><pre>{html.escape(json.dumps(report.get('parameters', {}), indent=1))}</pre>

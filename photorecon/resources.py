@@ -44,7 +44,9 @@ _open_peaks: list[list[int]] = []  # one [peak bytes seen so far] per enclosing 
 
 @contextmanager
 def measure(record: dict, key: str):
-    """``with measure(stats, "fusion"):`` adds ``stats[key] = {"seconds": s, "peak_mb": m}``.
+    """``with measure(stats, "fusion"):`` adds ``stats[key] = {"seconds": s, "peak_mb": m, "cpu_seconds": c}``:
+    wall seconds, peak resident memory, and CPU seconds of this process (user + system, all its threads; work
+    done in other processes, such as Dask workers, is not counted).
 
     Blocks nest: an inner block resets the process peak, so it first hands the peak seen so far to the
     blocks around it, and its own peak when it ends; an outer block reports the largest of them all.
@@ -55,7 +57,7 @@ def measure(record: dict, key: str):
     reset_peak()
     mine = [0]
     _open_peaks.append(mine)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         yield
     finally:
@@ -63,4 +65,21 @@ def measure(record: dict, key: str):
         peak = max(peak_bytes(), mine[0])
         for seen in _open_peaks:
             seen[0] = max(seen[0], peak)
-        record[key] = {"seconds": round(time.perf_counter() - t0, 3), "peak_mb": round(peak / 2**20, 1)}
+        record[key] = {"seconds": round(time.perf_counter() - t0, 3), "peak_mb": round(peak / 2**20, 1),
+                       "cpu_seconds": round(time.process_time() - c0, 2)}
+
+
+def release_memory(collect: bool = True) -> None:
+    """Hand freed memory back to the system: a garbage collection (``collect``; about 0.1 s with many Python
+    objects alive), then glibc's ``malloc_trim`` (where there is glibc). Large meshes and grids are freed into
+    malloc's pools, which otherwise keep the pages resident, so the peak of the next step would stack on them."""
+    import gc
+
+    if collect:
+        gc.collect()
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

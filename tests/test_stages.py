@@ -43,7 +43,8 @@ def test_a_stage_is_reused_until_its_parameters_change(tmp_path):
     marker = json.loads((tmp_path / ".stages" / "a.json").read_text())
     assert marker["params"] == {"param": "x"} and marker["info"] == {"length": 1}
     assert marker["seconds"] >= 0 and marker["peak_mb"] > 0
-    assert first.stats["a"] == {"seconds": marker["seconds"], "peak_mb": marker["peak_mb"]}
+    assert first.stats["a"] == {"seconds": marker["seconds"], "peak_mb": marker["peak_mb"],
+                                "cpu_seconds": marker["cpu_seconds"]}
 
     again = p("x")
     assert p.runs == ["a", "b"] and again.cached == ["a", "b"]

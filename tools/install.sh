@@ -18,3 +18,5 @@ PY="${PYTHON:-python3}"
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test]"
 .venv/bin/python -c "import open3d, pycolmap, cv2, onnxruntime, trimesh, viser; print('photorecon installed in .venv')"
+# compile the numba kernels now, into numba's cache next to the sources, so the first run does not compile them
+.venv/bin/photorecon warmup
