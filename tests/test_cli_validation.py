@@ -319,7 +319,7 @@ def test_fuzz_flag_values_never_give_a_traceback(fast_main, parser, tmp_path, ca
     each run fails at parse time or at the missing input, with one line and a nonzero code, never a traceback
     or an internal error."""
     rng = random.Random(24)
-    cmds = {c: sp for c, sp in _commands(parser).items() if c not in ("synth", "demo")}  # these need no input
+    cmds = {c: sp for c, sp in _commands(parser).items() if c not in ("synth", "demo", "warmup")}  # these need no input
     for i in range(300):
         cmd = rng.choice(sorted(cmds))
         sp = cmds[cmd]
