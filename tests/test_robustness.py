@@ -469,13 +469,39 @@ def test_full_disk_before_sfm_features_is_one_line_and_exit_8(blob_small, small_
     out = disk / "out"
     (out / "colmap").mkdir(parents=True)
     (out / ".photorecon").write_text("written by photorecon\n")
-    for name in (".features.abc123.db", ".features.abc123.db-journal", ".database.x.db-wal"):
+    for name in (".features.abc123.db", ".features.abc123.db-journal", ".database.x.db-wal",
+                 ".features_upsampled.k2.db-wal", ".database_upsampled.k3.db", ".upscaledq1/0/images/v.png",
+                 ".sparse_upsampled.partial/images.bin"):
+        (out / "colmap" / name).parent.mkdir(parents=True, exist_ok=True)
         (out / "colmap" / name).write_bytes(b"\0" * 1000)  # what an aborted run leaves
     assert main(["-q", "sfm", str(blob_small / "images"), "-o", str(out)]) == 8
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert "features.db: no space left on device" in err and str(disk) in err and "tmpfs" in err
     assert not (out / "colmap" / "features.db").exists() and _hidden_files(out) == []
+
+
+def test_space_check_of_upsampled_sift_covers_the_copies_and_the_features(blob_small, tmp_path, monkeypatch):
+    """The second SIFT pass (small photos, 2x upsampled copies) writes the copies and about twice the features:
+    the space checked before COLMAP's writer starts (it aborts the process on a full disk) covers both."""
+    from photorecon import sfm
+
+    names = sorted(p.name for p in (blob_small / "images").iterdir())
+    checked, copies = [], []
+    monkeypatch.setattr(sfm, "check_space", lambda path, need: checked.append(need))
+    upscaled = sfm._upscaled_copies
+
+    def measured(images_dir, mask_dir, names, s, dst):
+        masks = upscaled(images_dir, mask_dir, names, s, dst)
+        copies.append(sum(f.stat().st_size for f in dst.rglob("*") if f.is_file()))
+        return masks
+
+    monkeypatch.setattr(sfm, "_upscaled_copies", measured)
+    cams = [{"model": "SIMPLE_RADIAL", "params": "", "images": names, "size": [160, 120], "sift_upscale": 2}]
+    db = sfm.extract(blob_small / "images", tmp_path / "features_upsampled.db", cams, sfm.SfMConfig(threads=1))
+    written = copies[0] + db.stat().st_size
+    assert checked[0] >= written, (checked, copies, db.stat().st_size)
+    assert checked[0] > sfm.features_bytes(blob_small / "images", names, sfm.SfMConfig())
 
 
 def test_full_disk_during_mvs_is_one_line_and_keeps_no_partial_file(blob_small, small_disk, capsys):
