@@ -616,3 +616,26 @@ def test_eval_warns_when_frames_differ_and_cannot_be_aligned(result_in_sfm_frame
     assert np.abs(np.asarray(moved.vertices) - np.asarray(truth.vertices)).max() < 1e-6
     assert main(["eval", "--mesh", str(alone / "mesh.ply"), "--gt", gt, "--align-poses"]) == 2
     assert "no cameras beside" in capsys.readouterr().err
+
+
+def test_eval_warns_when_a_result_without_cameras_lies_far_from_the_truth(blob_small, fewer_samples, tmp_path,
+                                                                          capsys):
+    """A mesh in another frame without cameras beside it, whose bounding box looks like the truth's (rotated,
+    shifted by a third of its size): the F-score near 0 comes with a warning that the frames may differ."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    gt = trimesh.load(blob_small / "gt_mesh.ply", process=False)
+    c = np.asarray(gt.vertices).mean(0)
+    R = Rotation.from_euler("xyz", [70, 0, 120], degrees=True).as_matrix()
+    moved = gt.copy()
+    diag = np.linalg.norm(np.ptp(np.asarray(gt.vertices), axis=0))
+    moved.vertices = (np.asarray(gt.vertices) - c) @ R.T + c + [diag / 3, 0, 0]
+    moved.export(tmp_path / "mesh.ply")
+    argv = ["eval", "--mesh", str(tmp_path / "mesh.ply"), "--gt", str(blob_small / "gt_mesh.ply"), "--json", "-"]
+    assert main(argv) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["mesh"]["fscore"] < 0.3 and "far from the truth" in rep["warnings"][0], rep.get("warnings")
+    gt.export(tmp_path / "same.ply")  # the truth itself: no warning
+    assert main(["eval", "--mesh", str(tmp_path / "same.ply"), "--gt", str(blob_small / "gt_mesh.ply"), "--json", "-"]) == 0
+    assert "warnings" not in json.loads(capsys.readouterr().out)
