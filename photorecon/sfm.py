@@ -80,8 +80,10 @@ class SfMConfig:
 
 
 def _quiet(pycolmap) -> None:
-    """COLMAP logs every step to stderr; keep errors only unless photorecon runs with --verbose."""
-    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 2
+    """COLMAP logs every step, and its recoverable errors ("Failed to create any sparse model" before a retry
+    with relaxed thresholds), to stderr; photorecon reports what failed in its own line, so COLMAP's log shows
+    only with --verbose (its fatal errors always)."""
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 3
 
 
 # --- the SfM stages: extract -> match -> map -> undistort, each writing one output and returning its path ----
