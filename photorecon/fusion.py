@@ -453,7 +453,12 @@ def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_
     K = o3c.Tensor(intr.K, o3c.float64)
     T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
     depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
-    coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+    try:
+        coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+    except RuntimeError as exc:  # Open3D refuses a frame whose few valid pixels touch no block: it adds nothing
+        if "No block is touched" not in str(exc):
+            raise
+        return 0
     weighted = f.confidence is not None and cfg.confidence_weights
     if cfg.normal_sdf > 0 and f.normal is not None:
         if cfg.normal_sdf_plane_tol > 0:

@@ -372,7 +372,7 @@ def _copy(src, dst):
 def test_fuzz_corrupted_inputs_fail_in_one_line(tiny, tmp_path):
     """Corrupted files (random bytes in an image and a mesh, a truncated transforms.json, garbage in
     cameras.txt and images.txt, a depth map of the wrong shape, garbage .npz / .npy camera files) fed to fuse,
-    mvs, eval and convert: a nonzero exit with one line, no traceback and no native stack."""
+    mvs, eval and convert: exit 3 (bad input data) with one line, no traceback and no native stack."""
     rnd = random.Random(25)
     garbage = lambda n: bytes(rnd.randrange(256) for _ in range(n))  # noqa: E731
     cases = []
@@ -421,6 +421,7 @@ def test_fuzz_corrupted_inputs_fail_in_one_line(tiny, tmp_path):
         if os.environ.get("PHOTORECON_SHOW_FUZZ"):
             print(cmd, [str(a).replace(str(tmp_path), "") for a in argv], res.returncode, res.stderr.strip())
         _assert_clean_failure(res, cmd)
+        assert res.returncode == 3, (cmd, res.stderr)  # an input file's fault, not an unexpected failure (10)
     assert not list(tmp_path.rglob("*.partial"))
 
 

@@ -639,3 +639,64 @@ def test_eval_warns_when_a_result_without_cameras_lies_far_from_the_truth(blob_s
     gt.export(tmp_path / "same.ply")  # the truth itself: no warning
     assert main(["eval", "--mesh", str(tmp_path / "same.ply"), "--gt", str(blob_small / "gt_mesh.ply"), "--json", "-"]) == 0
     assert "warnings" not in json.loads(capsys.readouterr().out)
+
+
+# --- damaged camera and depth files ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("cmd", ["fuse", "mvs", "convert"])
+def test_camera_file_that_is_not_text_names_the_file_exit_3(ds, tmp_path, cmd, capsys):
+    """A cameras.txt with bytes that are not UTF-8 (a binary file renamed, a damaged copy): exit 3, one line
+    naming the file, the dataset unchanged and no output folder left."""
+    (ds / "transforms.json").unlink()
+    cams = ds / "sparse" / "0" / "cameras.txt"
+    cams.write_bytes(cams.read_bytes() + b"\xff\xfe\x80\x00 binary\n")
+    before = tree_hash(ds)
+    out = tmp_path / "out"
+    argv = {"fuse": [str(ds), "-o", str(out)], "mvs": [str(ds), "-o", str(out)],
+            "convert": [str(ds / "sparse" / "0"), str(tmp_path / "out.json")]}[cmd]
+    assert main(["-q", cmd, *argv]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{cams}: not a COLMAP text file" in err and "UTF-8" in err, err
+    assert tree_hash(ds) == before and not out.exists()
+
+
+def test_depth_map_far_smaller_than_its_camera_names_the_file_and_the_shape(ds, tmp_path, capsys):
+    """A (5, 7) depth map for a 160x120 camera (its aspect ratio, but no working resolution): exit 3 naming the
+    file and the expected shape, instead of Open3D's failure; no output folder left."""
+    np.save(ds / "depth" / "view_003.npy", np.ones((5, 7), np.float32))
+    out = tmp_path / "out"
+    assert main(["-q", "fuse", str(ds), "-o", str(out)]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "view_003.npy has shape (5, 7)" in err and "(120, 160)" in err, err
+    assert not out.exists()
+
+
+def test_depth_maps_with_a_single_valid_pixel_are_an_empty_mesh(ds, tmp_path, capsys):
+    """Depth maps of the right shape whose one valid pixel touches no TSDF block (Open3D refuses such a frame):
+    the frame adds nothing, and with every view so the usual empty-mesh error (exit 7)."""
+    for f in sorted((ds / "depth").glob("view_???.npy")):
+        d = np.load(f)
+        one = np.zeros_like(d)
+        i, j = np.argwhere(d > 0)[len(np.argwhere(d > 0)) // 2]
+        one[i, j] = d[i, j]
+        np.save(f, one)
+    assert main(["-q", "fuse", str(ds), "-o", str(tmp_path / "out")]) == 7
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no triangle" in err, err
+
+
+def test_damaged_stage_marker_is_as_if_absent(tmp_path):
+    """A stage marker with bytes that are not UTF-8 (a damaged disk): the stage runs again."""
+    from photorecon.stages import Stages
+
+    out = tmp_path / "o.txt"
+    runs = []
+
+    def make():
+        runs.append(1)
+        out.write_text("x")
+        return {}
+
+    Stages(tmp_path / ".stages").run("s", {"a": 1}, make, outputs=[out])
+    (tmp_path / ".stages" / "s.json").write_bytes(b"\xff\xfe{\x00")
+    Stages(tmp_path / ".stages").run("s", {"a": 1}, make, outputs=[out])
+    assert len(runs) == 2
