@@ -448,3 +448,16 @@ def test_sigterm_is_like_ctrl_c_and_the_run_resumes(blob_small, tmp_path):
     res = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 0, res.stderr
     assert (out / "mesh.ply").is_file()
+
+
+def test_stdout_closed_by_its_reader_is_a_quiet_exit_141(tiny):
+    """``photorecon eval ... | head -1``: the reader goes away before the report is printed; no error line
+    about a broken pipe, exit 141 (as a shell reports a process ended by SIGPIPE)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="2")
+    gt = str(tiny / "gt_mesh.ply")
+    proc = subprocess.Popen([sys.executable, "-m", "photorecon", "eval", "--mesh", gt, "--gt", gt],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    proc.stdout.close()  # before the metrics are computed and printed
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141, err
+    assert err.strip() == "", err
