@@ -156,6 +156,8 @@ def test_values_in_range_are_accepted(parser):
     (["convert", "a", "b", "--bounds", "-1", "2"], "--bounds"),
     (["reconstruct", "I", "-o", "O", "--mvs.window", "4"], "--mvs.window"),
     (["fuse", "D", "-o", "O", "--crop", "0,0,0,1,1"], "--crop"),
+    (["reconstruct", "I", "-o", "O", "--cluster", "foo"], "--cluster"),
+    (["mvs", "D", "--cluster", "local:0"], "--cluster"),
 ])
 def test_reported_bad_values_are_refused_with_the_range(fast_main, capsys, argv, flag):
     with pytest.raises(SystemExit) as e:
