@@ -700,3 +700,46 @@ def test_damaged_stage_marker_is_as_if_absent(tmp_path):
     (tmp_path / ".stages" / "s.json").write_bytes(b"\xff\xfe{\x00")
     Stages(tmp_path / ".stages").run("s", {"a": 1}, make, outputs=[out])
     assert len(runs) == 2
+
+
+# --- kill -KILL: the same command resumes and gives the same mesh ------------------------------------------------
+@pytest.mark.slow
+def test_sigkill_during_depth_resumes_to_the_same_mesh(blob_small, tmp_path):
+    """A run killed outright (no clean-up: SIGKILL, a power loss) during the depth stage: the same command
+    takes over its lock, keeps the finished depth tasks and gives the mesh of a run never interrupted."""
+    import signal
+    import time
+
+    import trimesh
+
+    def argv(out):
+        return [sys.executable, "-m", "photorecon", "-q", "reconstruct", str(blob_small / "images"), "-o", str(out),
+                "--poses", str(blob_small / "transforms.json"), "--n-sources", "4", "--min-consistent", "1"]
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "2"}
+    ref = tmp_path / "ref"
+    assert subprocess.run(argv(ref), env=env, capture_output=True, timeout=300).returncode == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen(argv(out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    work = out / ".work" / "depth"
+    while not list(work.glob("*/*/*.npy")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before the depth stage wrote a task"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert (out / ".photorecon.lock").exists() and not (out / "mesh.ply").exists()
+    res = subprocess.run([a for a in argv(out) if a != "-q"], env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "is no longer running; taking it over" in res.stderr
+    a, b = (trimesh.load(d / "mesh.ply", process=False) for d in (ref, out))
+    assert np.array_equal(_triangles(a), _triangles(b))  # the same triangles (the vertex order may differ)
+
+
+def _triangles(mesh) -> np.ndarray:
+    """A mesh's triangles as (F, 9) corner coordinates, each triangle's corners and the triangles in sorted order:
+    equal for two meshes with the same triangles whatever their vertex numbering (TSDF's block hash order)."""
+    tri = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]  # (F, 3, 3)
+    order = np.lexsort(tri.transpose(2, 0, 1)[::-1], axis=-1)  # each triangle's corners by x, then y, then z
+    tri = np.take_along_axis(tri, order[..., None], axis=1).reshape(len(tri), 9)
+    return tri[np.lexsort(tri.T[::-1])]
