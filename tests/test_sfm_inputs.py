@@ -119,15 +119,16 @@ def test_voxel_larger_than_the_scene_is_refused_naming_the_scene(blob_small):
 
 @pytest.mark.slow
 def test_unusual_image_files_register_and_unrelated_photos_are_named(ring16, tmp_path, capsys, caplog):
-    """A 16-bit PNG, a grey PNG, a CMYK JPEG, a non-ASCII file name and a duplicate photo among the ring's
-    views register with them; two unrelated photos are named as not registered (a warning), and with
+    """A 16-bit PNG, a grey PNG, a CMYK JPEG, a TIFF, a .BMP, a non-ASCII file name and a duplicate photo among
+    the ring's views register with them; two unrelated photos are named as not registered (a warning), and with
     --min-registered 1 in the error (exit 5). The input folder stays as it was."""
     from PIL import Image
 
     src, images = ring16 / "images", tmp_path / "images"
     images.mkdir()
     names = sorted(p.name for p in src.glob("*.png"))
-    unusual = {names[0]: names[0], names[1]: names[1], names[2]: names[2][:-4] + ".jpg", names[3]: "vue_été_фото.png"}
+    unusual = {names[0]: names[0], names[1]: names[1], names[2]: names[2][:-4] + ".jpg", names[3]: "vue_été_фото.png",
+               names[6]: names[6][:-4] + ".tif", names[7]: names[7][:-4] + ".BMP"}
     for k, name in enumerate(names):
         img = cv2.imread(str(src / name))
         dst = images / unusual.get(name, name)
@@ -137,6 +138,8 @@ def test_unusual_image_files_register_and_unrelated_photos_are_named(ring16, tmp
             cv2.imwrite(str(dst), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
         elif k == 2:
             Image.fromarray(cv2.cvtColor(img, cv2.COLOR_BGR2RGB)).convert("CMYK").save(dst, quality=95)
+        elif k in (6, 7):
+            cv2.imwrite(str(dst), img)  # TIFF, BMP (upper-case extension)
         else:
             shutil.copyfile(src / name, dst)
     shutil.copyfile(src / names[5], images / "duplicate.png")
