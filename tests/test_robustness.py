@@ -41,7 +41,7 @@ def _error_line(err: str) -> str:
     return lines[-1]
 
 
-# --- 1. an output never writes into, replaces or deletes an input ---------------------------------------------
+# --- an output never writes into, replaces or deletes an input -----------------------------------------------------
 @pytest.mark.parametrize("argv", [
     ["reconstruct", "{DS}/images", "-o", "{DS}"],
     ["reconstruct", "{DS}/images", "-o", "{DS}", "--overwrite"],
@@ -118,7 +118,7 @@ def test_eval_refuses_to_write_over_its_inputs(ds, capsys):
     assert tree_hash(ds) == before
 
 
-# --- 2. one run per output folder; a stage is complete only with all its outputs -----------------------------
+# --- one run per output folder; a stage is complete only with all its outputs --------------------------------------
 def test_second_run_on_a_locked_output_names_the_holder_and_exits_8(tmp_path):
     """Two runs on one output: the second stops at once, naming the process that holds the folder, and
     writes nothing; the first's lock is untouched."""
@@ -251,7 +251,7 @@ def test_depth_stage_needs_every_view_it_reports(tmp_path):
         _check_depth_written(layout, 2)
 
 
-# --- 14. rounded rotations in camera files ------------------------------------------------------------------------
+# --- rounded rotations in camera files -----------------------------------------------------------------------------
 def _blender_file(tmp_path, matrices):
     from PIL import Image
 
@@ -313,7 +313,7 @@ def test_rotation_snapping_keeps_exact_rotations_and_refuses_reflections():
         as_rotation(np.array([[1.0, 0.01, 0], [0, 1, 0], [0, 0, 1]]))
 
 
-# --- 4. truncated photos ------------------------------------------------------------------------------------------
+# --- truncated photos ----------------------------------------------------------------------------------------------
 def _jpeg_folder(src, dst, n=None):
     import cv2
 
@@ -379,7 +379,7 @@ def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, capl
         _undistort_given(model, photos, tmp_path / "out2")
 
 
-# --- 5. every listed image format works end to end -------------------------------------------------------------
+# --- every listed image format works end to end --------------------------------------------------------------------
 def test_webp_photos_are_ingested_as_png_copies(blob_small, tmp_path):
     """COLMAP's reader cannot decode WebP: ingest writes a PNG copy (NAME.png, or NAME.webp.png when a photo
     is already named NAME.png), pixels and alpha as decoded, and records the photo's name."""
@@ -432,7 +432,7 @@ def test_sfm_registers_webp_photos_among_pngs(ring16, tmp_path):
     assert tree_hash(photos) == before
 
 
-# --- 6. a full disk --------------------------------------------------------------------------------------------------
+# --- a full disk ---------------------------------------------------------------------------------------------------
 @pytest.fixture
 def small_disk(tmp_path):
     """``small_disk(size)``: a fresh tmpfs of ``size`` (e.g. "2500k") mounted in the test's folder; skipped
@@ -544,7 +544,7 @@ def test_write_over_a_file_size_limit_is_the_no_space_error(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-# --- 15. eval of a result in another frame than the truth ----------------------------------------------------------
+# --- eval of a result in another frame than the truth --------------------------------------------------------------
 @pytest.fixture
 def result_in_sfm_frame(blob_small, tmp_path):
     """A reconstruct-like output whose mesh and cameras are the truth's moved by a similarity (as SfM's frame
