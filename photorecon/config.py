@@ -18,6 +18,9 @@ config itself (values from a ``--config`` file, a preset, or the Python API)::
     "odd": True                an odd integer (a window size)
     "length": N                a comma-separated tuple of exactly N numbers (each within the range)
 
+A text field may declare ``"parse": FUNCTION`` (argparse's ``type``: returns the value or raises
+``argparse.ArgumentTypeError``), e.g. ``--cluster``'s address, checked before any work too.
+
 Settings are resolved in this order, each overriding the one before: the config's default, the command's own
 default (``defaults=``), a preset (``--quality``), a ``--config FILE.toml``, and flags given on the command line.
 """
