@@ -1,7 +1,7 @@
 """Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns every failure
 into one line on stderr and an exit code: a ``PhotoreconError`` its class's code, a parse error or an
 out-of-range value 2, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
-SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes)."""
+SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes); stdout closed by its reader 141."""
 from __future__ import annotations
 
 import argparse
@@ -17,6 +17,7 @@ log = logging.getLogger("photorecon")
 
 EXIT_INTERRUPTED = 130  # SIGINT (Ctrl-C): 128 + 2
 EXIT_TERMINATED = 143  # SIGTERM: 128 + 15
+EXIT_BROKEN_PIPE = 141  # stdout's reader went away (photorecon eval ... | head): 128 + SIGPIPE, as the shell's own
 
 
 class Terminated(KeyboardInterrupt):
@@ -121,6 +122,14 @@ def _main(argv: list[str] | None) -> int:
     except PhotoreconError as exc:
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
+    except BrokenPipeError:  # the reader of stdout closed it: nothing left to say to it, nor an error
+        import os
+
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        except (OSError, ValueError):
+            pass
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # a file system failure that no stage turned into a photorecon error
         err = from_os_error(exc, getattr(args, "out", None))
         print(f"{prog}: error: {_one_line(err)}", file=sys.stderr)

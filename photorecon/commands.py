@@ -210,12 +210,6 @@ def _run_eval(args):
         result, alignment, warning = _align_for_eval(result, gt, args)
         if alignment:
             report["alignment"] = alignment
-        if warning:
-            report["warnings"] = [warning]
-            if args.json_out == "-":  # the JSON on stdout carries it; say it on stderr too
-                import logging
-
-                logging.getLogger("photorecon").warning("warning: %s", warning)
         gt_pts = np.asarray(gt.vertices) if isinstance(gt, trimesh.Trimesh) else gt
         diag = float(np.linalg.norm(gt_pts.max(0) - gt_pts.min(0)))
         taus = args.tau or [0.01 * diag, 0.005 * diag]
@@ -226,6 +220,16 @@ def _run_eval(args):
                 result = icp_refine(result, gt, max_dist=2 * max(taus))
             m = cloud_metrics(result, gt, taus, crop_margin=args.crop_to_reference)
         report["mesh"] = m.as_dict()
+        if not alignment and not warning and m.accuracy_median > FAR_FROM_TRUTH * diag:
+            warning = (f"the result lies far from the truth everywhere (median distance {m.accuracy_median:.4g}, "
+                       f"{100 * m.accuracy_median / diag:.1f}% of the truth's diagonal): are they in the same "
+                       f"frame? {_align_hint(args)}")
+        if warning:
+            report["warnings"] = [warning]
+            if args.json_out == "-":  # the JSON on stdout carries it; say it on stderr too
+                import logging
+
+                logging.getLogger("photorecon").warning("warning: %s", warning)
         if args.error_mesh:
             if not isinstance(result, trimesh.Trimesh):
                 raise BadArgumentError(f"--error-mesh: {args.mesh} is a point cloud, not a mesh to colour")
@@ -257,7 +261,8 @@ def _run_eval(args):
 def _align_for_eval(result, gt, args):
     """``eval --mesh``: (the result in the truth's frame, the alignment's facts or None, a warning or None).
     Cameras on both sides (--poses/--ref, else beside the files) align the result unless --no-align-poses;
-    without, a result whose bounding box does not match the truth's gets a warning."""
+    without, a result whose bounding box does not match the truth's gets a warning (and, once measured, one
+    that lies far from the truth everywhere: ``FAR_FROM_TRUTH``)."""
     from .errors import BadArgumentError
     from .io.dataset import read_model
     from .metrics import align_by_cameras, cameras_beside, frames_differ
@@ -278,9 +283,17 @@ def _align_for_eval(result, gt, args):
     why = frames_differ(result, gt)
     if why is None:
         return result, None, None
-    hint = ("--align-poses aligns them through their cameras" if args.align_poses is False else
+    return result, None, f"{why}: are they in the same frame? {_align_hint(args)}"
+
+
+# eval warns when, without an alignment, the result's median distance to the truth is above this fraction of the
+# truth's diagonal (a reconstruction in the truth's frame: well under 1%; one in SfM's frame: 5-50%)
+FAR_FROM_TRUTH = 0.05
+
+
+def _align_hint(args) -> str:
+    return ("--align-poses aligns them through their cameras" if args.align_poses is False else
             "give the cameras of both (--poses and --ref) to align them, or --icp for a small offset")
-    return result, None, f"{why}: are they in the same frame? {hint}"
 
 
 def _print_thresholds(rows: list[dict]) -> None:

@@ -18,6 +18,9 @@ config itself (values from a ``--config`` file, a preset, or the Python API)::
     "odd": True                an odd integer (a window size)
     "length": N                a comma-separated tuple of exactly N numbers (each within the range)
 
+A text field may declare ``"parse": FUNCTION`` (argparse's ``type``: returns the value or raises
+``argparse.ArgumentTypeError``), e.g. ``--cluster``'s address, checked before any work too.
+
 Settings are resolved in this order, each overriding the one before: the config's default, the command's own
 default (``defaults=``), a preset (``--quality``), a ``--config FILE.toml``, and flags given on the command line.
 """
@@ -356,7 +359,8 @@ class Parser(argparse.ArgumentParser):
 def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), defaults=None) -> None:
     """One ``--PREFIX.FLAG`` (and, when free, ``--FLAG``) per dataclass field of ``config_cls`` (or
     ``metadata['flag']``); help from ``field(metadata={'help': ...})``, choices from ``Literal`` annotations,
-    ``--flag/--no-flag`` for booleans, ranges from the metadata (module docstring). Default values come from
+    ``--flag/--no-flag`` for booleans, ranges from the metadata (module docstring), a text setting's check from
+    ``metadata['parse']`` (argparse's ``type``). Default values come from
     the instance ``defaults`` when given (a stage whose caller overrides a config default, e.g. the pipeline's
     wider TSDF truncation), else the class. ``parser`` may be an argument group: name clashes are checked
     across the whole parser."""
@@ -394,6 +398,8 @@ def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), default
         if origin is typing.Literal:
             kw["choices"] = list(args)
             kw["type"] = type(args[0])
+        elif f.metadata.get("parse"):  # a text setting with its own check (raises argparse.ArgumentTypeError)
+            kw["type"] = f.metadata["parse"]
         elif rng is not None:
             kw["type"] = rng
         elif kind is not None:

@@ -31,11 +31,22 @@ from .tasks import IN_PROCESS, Executor, Task
 log = logging.getLogger("photorecon")
 
 
+def _cluster_arg(text: str) -> str:
+    """``--cluster`` checked when the arguments are parsed (before SfM runs): the text, or argparse's error."""
+    import argparse
+
+    try:
+        parse_cluster(text)
+    except BadArgumentError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--cluster: ")) from None
+    return text
+
+
 @dataclass
 class ClusterConfig:
     """Where the per-view and per-chunk tasks run (``--cluster``)."""
 
-    cluster: str | None = field(default=None, metadata={"help": "run the depth and fusion tasks on Dask: local:N (N local workers) or tcp://HOST:PORT (a scheduler; default: in this process)", "metavar": "ADDRESS"})
+    cluster: str | None = field(default=None, metadata={"help": "run the depth and fusion tasks on Dask: local:N (N local workers) or tcp://HOST:PORT (a scheduler; default: in this process)", "metavar": "ADDRESS", "parse": _cluster_arg})
     retries: int = field(default=3, metadata={"help": "with --cluster: times Dask retries a task that failed or whose worker died", "range": (0, 100)})
 
 

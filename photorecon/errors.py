@@ -5,7 +5,8 @@ Every message says what was expected, what was found, and (where it helps) what 
 Exit codes of ``photorecon``: 0 done; 1 other photorecon error; 2 bad argument or value (also every
 command-line parse error); 3 input data; 4 no images; 5 SfM; 6 no depth; 7 empty mesh; 8 output location;
 9 texture; 10 an unexpected failure (a bug: ``-v`` shows the traceback); 130 interrupted (Ctrl-C, SIGINT);
-143 terminated (SIGTERM). An interrupted run keeps no incomplete output and resumes when run again.
+143 terminated (SIGTERM); 141 stdout closed by its reader (``| head``), silently. An interrupted run keeps no
+incomplete output and resumes when run again.
 """
 from __future__ import annotations
 

@@ -457,7 +457,12 @@ def _frame_blocks(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max
     K = o3c.Tensor(intr.K, o3c.float64)
     T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
     depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
-    coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels)).numpy()
+    try:
+        coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels)).numpy()
+    except RuntimeError as exc:  # Open3D refuses a frame whose few valid pixels touch no block: it adds nothing
+        if "No block is touched" not in str(exc):
+            raise
+        coords = np.zeros((0, 3), np.int32)
     weighted = f.confidence is not None and cfg.confidence_weights
     if cfg.normal_sdf > 0 and f.normal is not None:
         if cfg.normal_sdf_plane_tol > 0:

@@ -133,8 +133,8 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
                     ", ".join(rest[:20]) + (" ..." if len(rest) > 20 else ""))
     if len(out) < min_images:
         found = f"{len(out)} readable image(s)" if out else "no readable image"
-        raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp); "
-                            f"at least {min_images} needed")
+        need = f"; at least {min_images} needed" if out else ""  # none: the count needed says nothing more
+        raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp){need}")
     return Ingest(out, skipped, renamed)
 
 

@@ -80,8 +80,10 @@ class SfMConfig:
 
 
 def _quiet(pycolmap) -> None:
-    """COLMAP logs every step to stderr; keep errors only unless photorecon runs with --verbose."""
-    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 2
+    """COLMAP logs every step, and its recoverable errors ("Failed to create any sparse model" before a retry
+    with relaxed thresholds), to stderr; photorecon reports what failed in its own line, so COLMAP's log shows
+    only with --verbose (its fatal errors always)."""
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 3
 
 
 # --- the SfM stages: extract -> match -> map -> undistort, each writing one output and returning its path ----
@@ -252,7 +254,8 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
     s > 1 is extracted on s-times upsampled copies (``_upscaled_copies``), its keypoints then scaled back: small
     photos give several times more features (12 views of the blob at 320x240: 0.8-1.3k -> 1.7-2.8k)."""
     pycolmap = _pycolmap()
-    check_space(database, features_bytes(images_dir, [n for cam in cameras for n in cam["images"]], cfg))
+    check_space(database, sum(features_bytes(images_dir, cam["images"], cfg, int(cam.get("sift_upscale", 1))) - MB
+                              for cam in cameras) + MB)
     with atomic_path(database) as tmp, tempfile.TemporaryDirectory(dir=database.parent, prefix=".upscaled") as up:
         for i, cam in enumerate(cameras):
             s = int(cam.get("sift_upscale", 1))
@@ -522,10 +525,13 @@ def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
 MB = 1 << 20
 
 
-def features_bytes(images_dir: Path, names: list[str], cfg: SfMConfig) -> int:
+def features_bytes(images_dir: Path, names: list[str], cfg: SfMConfig, upscale: int = 1) -> int:
     """About the most a COLMAP feature database of these images takes: per image
     min(max_features, pixels at max_image_size / 25) features of 160 bytes (128-byte descriptor, 6-float
-    keypoint, SQLite's overhead; measured 156 on 320x240 renders, which gave one feature per 40-80 pixels)."""
+    keypoint, SQLite's overhead; measured 156 on 320x240 renders, which gave one feature per 40-80 pixels).
+    ``upscale`` s > 1 (SIFT on s-times upsampled copies, ``_upscaled_copies``): s times the features (measured
+    2x for s = 2), plus the copies themselves: s^2 times the file or half a byte per upsampled pixel, whichever
+    is more (measured on 320x240 renders: PNG 3.3x the file, JPEG at quality 95 4.9x)."""
     from .io.images import image_size
 
     total = MB
@@ -535,15 +541,22 @@ def features_bytes(images_dir: Path, names: list[str], cfg: SfMConfig) -> int:
         except Exception:  # unreadable here: the extraction will say so
             w, h = cfg.max_image_size, cfg.max_image_size
         s = min(1.0, cfg.max_image_size / max(w, h, 1))
-        total += int(min(cfg.max_features, w * h * s * s / 25) * 160)
+        total += int(min(cfg.max_features, w * h * s * s / 25 * upscale) * 160)
+        if upscale > 1:
+            try:
+                size = (images_dir / n).stat().st_size
+            except OSError:
+                size = 0
+            total += upscale * upscale * max(size, w * h // 2)
     return total
 
 
 def _remove_leftovers(work: Path, out: Path) -> None:
     """Temporary files of a run that died in COLMAP's native code (a full disk aborts SQLite's writer):
-    the half-written databases and their journals, the mapper's and the undistorter's folders."""
-    leftovers = [*work.glob(".features.*.db*"), *work.glob(".database.*.db*"), *work.glob(".mapper*"),
-                 *out.glob(".undistort*")]
+    the half-written databases and their journals (also the upsampled pass's), the upsampled copies for SIFT,
+    the mapper's and the undistorter's folders, half-written stage folders."""
+    leftovers = [*work.glob(".features*.db*"), *work.glob(".database*.db*"), *work.glob(".mapper*"),
+                 *work.glob(".upscaled*"), *work.glob(".*.partial"), *out.glob(".undistort*")]
     for p in leftovers:
         if p.is_dir():
             shutil.rmtree(p, ignore_errors=True)

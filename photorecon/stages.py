@@ -149,6 +149,6 @@ def _present(p: Path) -> bool:
 def _read_marker(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
+    except (OSError, ValueError):  # unreadable, not UTF-8, not JSON: as if absent (the stage runs again)
         return {}
     return data if isinstance(data, dict) and "id" in data else {}

@@ -260,7 +260,7 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     if not images_dir.is_dir():
         raise InputDataError(f"{images_dir}: no such image folder")
     _check_work_dir(images_dir, work)
-    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 2
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 3  # COLMAP's log with -v only
     db_path = work / "database.db"
     try:
         for sub in ("images", "masks", "sparse"):

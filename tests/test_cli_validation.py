@@ -156,6 +156,8 @@ def test_values_in_range_are_accepted(parser):
     (["convert", "a", "b", "--bounds", "-1", "2"], "--bounds"),
     (["reconstruct", "I", "-o", "O", "--mvs.window", "4"], "--mvs.window"),
     (["fuse", "D", "-o", "O", "--crop", "0,0,0,1,1"], "--crop"),
+    (["reconstruct", "I", "-o", "O", "--cluster", "foo"], "--cluster"),
+    (["mvs", "D", "--cluster", "local:0"], "--cluster"),
 ])
 def test_reported_bad_values_are_refused_with_the_range(fast_main, capsys, argv, flag):
     with pytest.raises(SystemExit) as e:
@@ -372,7 +374,7 @@ def _copy(src, dst):
 def test_fuzz_corrupted_inputs_fail_in_one_line(tiny, tmp_path):
     """Corrupted files (random bytes in an image and a mesh, a truncated transforms.json, garbage in
     cameras.txt and images.txt, a depth map of the wrong shape, garbage .npz / .npy camera files) fed to fuse,
-    mvs, eval and convert: a nonzero exit with one line, no traceback and no native stack."""
+    mvs, eval and convert: exit 3 (bad input data) with one line, no traceback and no native stack."""
     rnd = random.Random(25)
     garbage = lambda n: bytes(rnd.randrange(256) for _ in range(n))  # noqa: E731
     cases = []
@@ -421,6 +423,7 @@ def test_fuzz_corrupted_inputs_fail_in_one_line(tiny, tmp_path):
         if os.environ.get("PHOTORECON_SHOW_FUZZ"):
             print(cmd, [str(a).replace(str(tmp_path), "") for a in argv], res.returncode, res.stderr.strip())
         _assert_clean_failure(res, cmd)
+        assert res.returncode == 3, (cmd, res.stderr)  # an input file's fault, not an unexpected failure (10)
     assert not list(tmp_path.rglob("*.partial"))
 
 
@@ -447,3 +450,16 @@ def test_sigterm_is_like_ctrl_c_and_the_run_resumes(blob_small, tmp_path):
     res = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=300)
     assert res.returncode == 0, res.stderr
     assert (out / "mesh.ply").is_file()
+
+
+def test_stdout_closed_by_its_reader_is_a_quiet_exit_141(tiny):
+    """``photorecon eval ... | head -1``: the reader goes away before the report is printed; no error line
+    about a broken pipe, exit 141 (as a shell reports a process ended by SIGPIPE)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="2")
+    gt = str(tiny / "gt_mesh.ply")
+    proc = subprocess.Popen([sys.executable, "-m", "photorecon", "eval", "--mesh", gt, "--gt", gt],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    proc.stdout.close()  # before the metrics are computed and printed
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141, err
+    assert err.strip() == "", err

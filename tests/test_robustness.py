@@ -41,7 +41,7 @@ def _error_line(err: str) -> str:
     return lines[-1]
 
 
-# --- 1. an output never writes into, replaces or deletes an input ---------------------------------------------
+# --- an output never writes into, replaces or deletes an input -----------------------------------------------------
 @pytest.mark.parametrize("argv", [
     ["reconstruct", "{DS}/images", "-o", "{DS}"],
     ["reconstruct", "{DS}/images", "-o", "{DS}", "--overwrite"],
@@ -118,7 +118,7 @@ def test_eval_refuses_to_write_over_its_inputs(ds, capsys):
     assert tree_hash(ds) == before
 
 
-# --- 2. one run per output folder; a stage is complete only with all its outputs -----------------------------
+# --- one run per output folder; a stage is complete only with all its outputs --------------------------------------
 def test_second_run_on_a_locked_output_names_the_holder_and_exits_8(tmp_path):
     """Two runs on one output: the second stops at once, naming the process that holds the folder, and
     writes nothing; the first's lock is untouched."""
@@ -251,7 +251,7 @@ def test_depth_stage_needs_every_view_it_reports(tmp_path):
         _check_depth_written(layout, 2)
 
 
-# --- 14. rounded rotations in camera files ------------------------------------------------------------------------
+# --- rounded rotations in camera files -----------------------------------------------------------------------------
 def _blender_file(tmp_path, matrices):
     from PIL import Image
 
@@ -313,7 +313,7 @@ def test_rotation_snapping_keeps_exact_rotations_and_refuses_reflections():
         as_rotation(np.array([[1.0, 0.01, 0], [0, 1, 0], [0, 0, 1]]))
 
 
-# --- 4. truncated photos ------------------------------------------------------------------------------------------
+# --- truncated photos ----------------------------------------------------------------------------------------------
 def _jpeg_folder(src, dst, n=None):
     import cv2
 
@@ -379,7 +379,7 @@ def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, capl
         _undistort_given(model, photos, tmp_path / "out2")
 
 
-# --- 5. every listed image format works end to end -------------------------------------------------------------
+# --- every listed image format works end to end --------------------------------------------------------------------
 def test_webp_photos_are_ingested_as_png_copies(blob_small, tmp_path):
     """COLMAP's reader cannot decode WebP: ingest writes a PNG copy (NAME.png, or NAME.webp.png when a photo
     is already named NAME.png), pixels and alpha as decoded, and records the photo's name."""
@@ -432,7 +432,7 @@ def test_sfm_registers_webp_photos_among_pngs(ring16, tmp_path):
     assert tree_hash(photos) == before
 
 
-# --- 6. a full disk --------------------------------------------------------------------------------------------------
+# --- a full disk ---------------------------------------------------------------------------------------------------
 @pytest.fixture
 def small_disk(tmp_path):
     """``small_disk(size)``: a fresh tmpfs of ``size`` (e.g. "2500k") mounted in the test's folder; skipped
@@ -469,13 +469,39 @@ def test_full_disk_before_sfm_features_is_one_line_and_exit_8(blob_small, small_
     out = disk / "out"
     (out / "colmap").mkdir(parents=True)
     (out / ".photorecon").write_text("written by photorecon\n")
-    for name in (".features.abc123.db", ".features.abc123.db-journal", ".database.x.db-wal"):
+    for name in (".features.abc123.db", ".features.abc123.db-journal", ".database.x.db-wal",
+                 ".features_upsampled.k2.db-wal", ".database_upsampled.k3.db", ".upscaledq1/0/images/v.png",
+                 ".sparse_upsampled.partial/images.bin"):
+        (out / "colmap" / name).parent.mkdir(parents=True, exist_ok=True)
         (out / "colmap" / name).write_bytes(b"\0" * 1000)  # what an aborted run leaves
     assert main(["-q", "sfm", str(blob_small / "images"), "-o", str(out)]) == 8
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert "features.db: no space left on device" in err and str(disk) in err and "tmpfs" in err
     assert not (out / "colmap" / "features.db").exists() and _hidden_files(out) == []
+
+
+def test_space_check_of_upsampled_sift_covers_the_copies_and_the_features(blob_small, tmp_path, monkeypatch):
+    """The second SIFT pass (small photos, 2x upsampled copies) writes the copies and about twice the features:
+    the space checked before COLMAP's writer starts (it aborts the process on a full disk) covers both."""
+    from photorecon import sfm
+
+    names = sorted(p.name for p in (blob_small / "images").iterdir())
+    checked, copies = [], []
+    monkeypatch.setattr(sfm, "check_space", lambda path, need: checked.append(need))
+    upscaled = sfm._upscaled_copies
+
+    def measured(images_dir, mask_dir, names, s, dst):
+        masks = upscaled(images_dir, mask_dir, names, s, dst)
+        copies.append(sum(f.stat().st_size for f in dst.rglob("*") if f.is_file()))
+        return masks
+
+    monkeypatch.setattr(sfm, "_upscaled_copies", measured)
+    cams = [{"model": "SIMPLE_RADIAL", "params": "", "images": names, "size": [160, 120], "sift_upscale": 2}]
+    db = sfm.extract(blob_small / "images", tmp_path / "features_upsampled.db", cams, sfm.SfMConfig(threads=1))
+    written = copies[0] + db.stat().st_size
+    assert checked[0] >= written, (checked, copies, db.stat().st_size)
+    assert checked[0] > sfm.features_bytes(blob_small / "images", names, sfm.SfMConfig())
 
 
 def test_full_disk_during_mvs_is_one_line_and_keeps_no_partial_file(blob_small, small_disk, capsys):
@@ -518,7 +544,7 @@ def test_write_over_a_file_size_limit_is_the_no_space_error(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-# --- 15. eval of a result in another frame than the truth ----------------------------------------------------------
+# --- eval of a result in another frame than the truth --------------------------------------------------------------
 @pytest.fixture
 def result_in_sfm_frame(blob_small, tmp_path):
     """A reconstruct-like output whose mesh and cameras are the truth's moved by a similarity (as SfM's frame
@@ -590,3 +616,130 @@ def test_eval_warns_when_frames_differ_and_cannot_be_aligned(result_in_sfm_frame
     assert np.abs(np.asarray(moved.vertices) - np.asarray(truth.vertices)).max() < 1e-6
     assert main(["eval", "--mesh", str(alone / "mesh.ply"), "--gt", gt, "--align-poses"]) == 2
     assert "no cameras beside" in capsys.readouterr().err
+
+
+def test_eval_warns_when_a_result_without_cameras_lies_far_from_the_truth(blob_small, fewer_samples, tmp_path,
+                                                                          capsys):
+    """A mesh in another frame without cameras beside it, whose bounding box looks like the truth's (rotated,
+    shifted by a third of its size): the F-score near 0 comes with a warning that the frames may differ."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    gt = trimesh.load(blob_small / "gt_mesh.ply", process=False)
+    c = np.asarray(gt.vertices).mean(0)
+    R = Rotation.from_euler("xyz", [70, 0, 120], degrees=True).as_matrix()
+    moved = gt.copy()
+    diag = np.linalg.norm(np.ptp(np.asarray(gt.vertices), axis=0))
+    moved.vertices = (np.asarray(gt.vertices) - c) @ R.T + c + [diag / 3, 0, 0]
+    moved.export(tmp_path / "mesh.ply")
+    argv = ["eval", "--mesh", str(tmp_path / "mesh.ply"), "--gt", str(blob_small / "gt_mesh.ply"), "--json", "-"]
+    assert main(argv) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["mesh"]["fscore"] < 0.3 and "far from the truth" in rep["warnings"][0], rep.get("warnings")
+    gt.export(tmp_path / "same.ply")  # the truth itself: no warning
+    assert main(["eval", "--mesh", str(tmp_path / "same.ply"), "--gt", str(blob_small / "gt_mesh.ply"), "--json", "-"]) == 0
+    assert "warnings" not in json.loads(capsys.readouterr().out)
+
+
+# --- damaged camera and depth files ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("cmd", ["fuse", "mvs", "convert"])
+def test_camera_file_that_is_not_text_names_the_file_exit_3(ds, tmp_path, cmd, capsys):
+    """A cameras.txt with bytes that are not UTF-8 (a binary file renamed, a damaged copy): exit 3, one line
+    naming the file, the dataset unchanged and no output folder left."""
+    (ds / "transforms.json").unlink()
+    cams = ds / "sparse" / "0" / "cameras.txt"
+    cams.write_bytes(cams.read_bytes() + b"\xff\xfe\x80\x00 binary\n")
+    before = tree_hash(ds)
+    out = tmp_path / "out"
+    argv = {"fuse": [str(ds), "-o", str(out)], "mvs": [str(ds), "-o", str(out)],
+            "convert": [str(ds / "sparse" / "0"), str(tmp_path / "out.json")]}[cmd]
+    assert main(["-q", cmd, *argv]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{cams}: not a COLMAP text file" in err and "UTF-8" in err, err
+    assert tree_hash(ds) == before and not out.exists()
+
+
+def test_depth_map_far_smaller_than_its_camera_names_the_file_and_the_shape(ds, tmp_path, capsys):
+    """A (5, 7) depth map for a 160x120 camera (its aspect ratio, but no working resolution): exit 3 naming the
+    file and the expected shape, instead of Open3D's failure; no output folder left."""
+    np.save(ds / "depth" / "view_003.npy", np.ones((5, 7), np.float32))
+    out = tmp_path / "out"
+    assert main(["-q", "fuse", str(ds), "-o", str(out)]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "view_003.npy has shape (5, 7)" in err and "(120, 160)" in err, err
+    assert not out.exists()
+
+
+def test_depth_maps_with_a_single_valid_pixel_are_an_empty_mesh(ds, tmp_path, capsys):
+    """Depth maps of the right shape whose one valid pixel touches no TSDF block (Open3D refuses such a frame):
+    the frame adds nothing, and with every view so the usual empty-mesh error (exit 7)."""
+    for f in sorted((ds / "depth").glob("view_???.npy")):
+        d = np.load(f)
+        one = np.zeros_like(d)
+        i, j = np.argwhere(d > 0)[len(np.argwhere(d > 0)) // 2]
+        one[i, j] = d[i, j]
+        np.save(f, one)
+    assert main(["-q", "fuse", str(ds), "-o", str(tmp_path / "out")]) == 7
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no triangle" in err, err
+
+
+def test_damaged_stage_marker_is_as_if_absent(tmp_path):
+    """A stage marker with bytes that are not UTF-8 (a damaged disk): the stage runs again."""
+    from photorecon.stages import Stages
+
+    out = tmp_path / "o.txt"
+    runs = []
+
+    def make():
+        runs.append(1)
+        out.write_text("x")
+        return {}
+
+    Stages(tmp_path / ".stages").run("s", {"a": 1}, make, outputs=[out])
+    (tmp_path / ".stages" / "s.json").write_bytes(b"\xff\xfe{\x00")
+    Stages(tmp_path / ".stages").run("s", {"a": 1}, make, outputs=[out])
+    assert len(runs) == 2
+
+
+# --- kill -KILL: the same command resumes and gives the same mesh ------------------------------------------------
+@pytest.mark.slow
+def test_sigkill_during_depth_resumes_to_the_same_mesh(blob_small, tmp_path):
+    """A run killed outright (no clean-up: SIGKILL, a power loss) during the depth stage: the same command
+    takes over its lock, keeps the finished depth tasks and gives the mesh of a run never interrupted."""
+    import signal
+    import time
+
+    import trimesh
+
+    def argv(out):
+        return [sys.executable, "-m", "photorecon", "-q", "reconstruct", str(blob_small / "images"), "-o", str(out),
+                "--poses", str(blob_small / "transforms.json"), "--n-sources", "4", "--min-consistent", "1"]
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "2"}
+    ref = tmp_path / "ref"
+    assert subprocess.run(argv(ref), env=env, capture_output=True, timeout=300).returncode == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen(argv(out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    work = out / ".work" / "depth"
+    while not list(work.glob("*/*/*.npy")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before the depth stage wrote a task"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert (out / ".photorecon.lock").exists() and not (out / "mesh.ply").exists()
+    res = subprocess.run([a for a in argv(out) if a != "-q"], env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "is no longer running; taking it over" in res.stderr
+    a, b = (trimesh.load(d / "mesh.ply", process=False) for d in (ref, out))
+    assert np.array_equal(_triangles(a), _triangles(b))  # the same triangles (the vertex order may differ)
+
+
+def _triangles(mesh) -> np.ndarray:
+    """A mesh's triangles as (F, 9) corner coordinates, each triangle's corners and the triangles in sorted order:
+    equal for two meshes with the same triangles whatever their vertex numbering (TSDF's block hash order)."""
+    tri = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]  # (F, 3, 3)
+    order = np.lexsort(tri.transpose(2, 0, 1)[::-1], axis=-1)  # each triangle's corners by x, then y, then z
+    tri = np.take_along_axis(tri, order[..., None], axis=1).reshape(len(tri), 9)
+    return tri[np.lexsort(tri.T[::-1])]

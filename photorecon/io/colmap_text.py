@@ -100,7 +100,13 @@ def write_colmap_text(model: SparseModel, folder: str | Path) -> Path:
 def _data_lines(path: Path) -> list[str]:
     if not path.is_file():
         raise InputDataError(f"{path}: missing; a COLMAP text model needs cameras.txt, images.txt and points3D.txt")
-    return [ln.rstrip("\n") for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputDataError(f"{path}: not a COLMAP text file (byte {exc.object[exc.start]:#04x} at offset {exc.start} "
+                             "is not UTF-8 text); expected cameras.txt, images.txt and points3D.txt as COLMAP "
+                             "writes them") from None
+    return [ln.rstrip("\n") for ln in text.splitlines() if not ln.startswith("#")]
 
 
 def read_colmap_text(folder: str | Path) -> SparseModel:

@@ -20,6 +20,7 @@ from .nerf import BLENDER_SPLITS, read_blender, read_transforms
 from .strecha import read_strecha
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+MIN_DEPTH_SIDE = 64  # a depth map at a working resolution: at least this long side (MVS's smallest --max-size)
 
 
 def read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
@@ -133,15 +134,17 @@ class Dataset:
 
     def depth(self, view: View) -> np.ndarray:
         """float32 z-depth (H, W) of ``view``: at its camera's size, or at a working resolution with the
-        camera's aspect ratio (within 1 px of rounding per axis; fusion then scales the intrinsics)."""
+        camera's aspect ratio (within 1 px of rounding per axis, at least ``MIN_DEPTH_SIDE`` px on its long side;
+        fusion then scales the intrinsics)."""
         path = self.depth_path(view)
         d = read_depth(path, None, view.name)
         W, H = view.intrinsics.size
         h, w = d.shape
-        # |h - w H / W| <= 1 and |w - h W / H| <= 1, in integers
-        if (h, w) != (H, W) and abs(h * W - w * H) > min(W, H):
+        # |h - w H / W| <= 1 and |w - h W / H| <= 1, in integers; a resize keeps MIN_DEPTH_SIDE px on its long side
+        if (h, w) != (H, W) and (abs(h * W - w * H) > min(W, H) or max(h, w) < min(MIN_DEPTH_SIDE, max(W, H))):
             raise InputDataError(f"view {view.name}: depth map {path} has shape {d.shape}, but the camera is {W}x{H}: "
-                                 f"expected (H, W) = {(H, W)} or a resize with the same aspect ratio")
+                                 f"expected (H, W) = {(H, W)} or a resize with the same aspect ratio and at least "
+                                 f"{min(MIN_DEPTH_SIDE, max(W, H))} px on its long side")
         return d
 
     def has_depth(self, view: View) -> bool:

@@ -137,20 +137,38 @@ def prepare_output(out: str | Path, overwrite: bool = False, inputs: tuple = (),
 def output_folder(out: str | Path, overwrite: bool = False, inputs: tuple = (),
                   writes: tuple[str, ...] = WRITTEN_NAMES):
     """Check ``out`` (``check_output``), create it, lock it (``output_lock``), mark it as photorecon's and
-    yield it as a ``Path``; the lock is released when the block ends."""
+    yield it as a ``Path``; the lock is released when the block ends. A folder this call created is removed
+    again when the block fails before writing anything into it."""
     out = check_output(out, overwrite, inputs, writes)
+    created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
                           "choose a writable folder") from None
-    with output_lock(out):
-        try:
-            _mark(out)
-        except OSError as exc:
-            raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
-                              "choose a writable folder") from None
-        yield out
+    try:
+        with output_lock(out):
+            try:
+                _mark(out)
+            except OSError as exc:
+                raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
+                                  "choose a writable folder") from None
+            yield out
+    except BaseException:
+        if created:
+            _remove_if_unused(out)
+        raise
+
+
+def _remove_if_unused(out: Path) -> None:
+    """Remove ``out`` when it holds no file but photorecon's marker (empty folders aside)."""
+    import shutil
+
+    try:
+        if all(p.is_dir() or p == out / MARKER for p in out.rglob("*")):
+            shutil.rmtree(out)
+    except OSError:
+        pass
 
 
 # --- the lock ---------------------------------------------------------------------------------------------------
