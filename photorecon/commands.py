@@ -337,8 +337,8 @@ def _print_report(report: dict) -> None:
 
 @command
 def sfm(sub):
-    from .scale import ScaleConfig
-    from .sfm import SfMConfig
+    from .poses.scale import ScaleConfig
+    from .poses.sfm import SfMConfig
 
     p = sub.add_parser("sfm", help="camera poses for an image folder (COLMAP SfM via pycolmap)",
                        description="Structure from motion: writes OUT/images (undistorted), OUT/sparse/0 "
@@ -358,8 +358,8 @@ def _run_sfm(args):
     from pathlib import Path
 
     from .io.output import output_folder
-    from .scale import ScaleConfig, scale_output
-    from .sfm import SfMConfig, check_sfm_masks, run_sfm
+    from .poses.scale import ScaleConfig, scale_output
+    from .poses.sfm import SfMConfig, check_sfm_masks, run_sfm
 
     _apply_quality(args)
     cfg = config_from_args(SfMConfig, args)
@@ -517,8 +517,8 @@ def _run_reconstruct(args):
     from .mesh import CleanConfig
     from .distributed import ClusterConfig
     from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
-    from .scale import ScaleConfig
-    from .sfm import SfMConfig
+    from .poses.scale import ScaleConfig
+    from .poses.sfm import SfMConfig
     from .texture import TextureConfig
 
     _apply_quality(args)

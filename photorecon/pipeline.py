@@ -43,8 +43,8 @@ from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
 from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
-from .scale import ScaleConfig
-from .sfm import SfMConfig
+from .poses.scale import ScaleConfig
+from .poses.sfm import SfMConfig
 from .layout import Layout
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
@@ -198,7 +198,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 overwrite: bool = False) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
     from .io.output import output_folder
-    from .ingest import VIDEO_SUFFIXES
+    from .poses.ingest import VIDEO_SUFFIXES
     from .mesh import parse_formats
 
     cfgs = cfgs or StageConfigs()
@@ -222,7 +222,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         check_model_file(run.depth_model)
     masks = Path(run.masks) if run.masks else None
     if masks is not None:  # before anything is written
-        from .sfm import check_sfm_masks
+        from .poses.sfm import check_sfm_masks
 
         check_sfm_masks(images, masks)
     inputs = (images, masks, run.poses, run.depth_model, cfgs.sfm.intrinsics,
@@ -241,8 +241,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
     from .io.nerf import write_transforms
     from .mesh import export, load_mesh
     from .preview import render_preview
-    from .scale import given_units, scale_output
-    from .sfm import run_sfm
+    from .poses.scale import given_units, scale_output
+    from .poses.sfm import run_sfm
 
     run = cfgs.run
     layout = Layout(out)

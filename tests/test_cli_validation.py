@@ -204,7 +204,7 @@ def test_settings_resolve_in_order(parser, tmp_path):
     from photorecon.commands import QUALITY_PRESETS, _apply_quality
     from photorecon.depth.mvs import MVSConfig
     from photorecon.fusion import FusionConfig
-    from photorecon.sfm import SfMConfig
+    from photorecon.poses.sfm import SfMConfig
 
     sp = _commands(parser)["reconstruct"]
 

@@ -449,7 +449,7 @@ def _triangulated(dataset):
     (given poses come without points); the model unchanged, with a warning, when that fails."""
     import tempfile
 
-    from ..triangulate import triangulate_given
+    from ..poses.triangulate import triangulate_given
 
     with tempfile.TemporaryDirectory(prefix="photorecon_tri_") as work:
         model = triangulate_given(dataset.layout.images, dataset.model, work)

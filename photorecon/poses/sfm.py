@@ -22,15 +22,15 @@ from typing import Literal
 
 import numpy as np
 
-from .cameras import Intrinsics
-from .conventions import colmap_from_intrinsics
-from .errors import BadArgumentError, InputDataError, SfMError
-from .io.atomic import atomic_path, atomic_write_json
-from .io.colmap import read_colmap_binary, sparse_from_pycolmap
-from .io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
-from .io.space import check_space
-from .layout import Layout
-from .stages import Stages, atomic_dir, fingerprint, replace_dir
+from ..cameras import Intrinsics
+from ..conventions import colmap_from_intrinsics
+from ..errors import BadArgumentError, InputDataError, SfMError
+from ..io.atomic import atomic_path, atomic_write_json
+from ..io.colmap import read_colmap_binary, sparse_from_pycolmap
+from ..io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
+from ..io.space import check_space
+from ..layout import Layout
+from ..stages import Stages, atomic_dir, fingerprint, replace_dir
 
 log = logging.getLogger("photorecon")
 
@@ -140,7 +140,7 @@ def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
     at its image's size). For a video only the folder is checked here; its frames' masks are checked when
     they are converted (``write_colmap_masks``)."""
     from .ingest import VIDEO_SUFFIXES, list_images
-    from .io.images import MASK_HELP, image_size, match_masks
+    from ..io.images import MASK_HELP, image_size, match_masks
 
     images, masks = Path(images), Path(masks)
     if images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES:
@@ -159,7 +159,7 @@ def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, mas
     differ), else an alpha channel (RGBA, grey + alpha). When any image has one, every other image gets an
     all-255 mask (used whole): COLMAP skips an image without a mask file once it is given a mask folder.
     Returns how many masks came from the user's folder or alpha channels."""
-    from .io.images import mask_file, read_alpha, read_mask, write_image
+    from ..io.images import mask_file, read_alpha, read_mask, write_image
 
     photo_names = photo_names or {}
     n, unmasked = 0, []
@@ -448,7 +448,7 @@ def _undistort_masks(model_dir: Path, model: SparseModel, mask_dir: Path, out: P
     outside the source image 0). Returns how many were written."""
     import cv2
 
-    from .io.images import read_mask, write_image
+    from ..io.images import read_mask, write_image
 
     distorted = {v.image_file: v.intrinsics for v in read_colmap_binary(model_dir).views}
     n = 0
@@ -494,7 +494,7 @@ def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mas
 
 def publish(model_dir: Path, out: Path) -> SparseModel:
     """The undistorted model of ``model_dir`` (COLMAP text) as ``out/sparse/0`` and ``out/transforms.json``."""
-    from .io.nerf import write_transforms
+    from ..io.nerf import write_transforms
 
     model = read_colmap_text(model_dir)
     layout = Layout(out)
@@ -526,7 +526,7 @@ def features_bytes(images_dir: Path, names: list[str], cfg: SfMConfig) -> int:
     """About the most a COLMAP feature database of these images takes: per image
     min(max_features, pixels at max_image_size / 25) features of 160 bytes (128-byte descriptor, 6-float
     keypoint, SQLite's overhead; measured 156 on 320x240 renders, which gave one feature per 40-80 pixels)."""
-    from .io.images import image_size
+    from ..io.images import image_size
 
     total = MB
     for n in names:
