@@ -29,6 +29,8 @@ _ALIASES = {
     "photorecon.sfm": "photorecon.poses.sfm",
     "photorecon.triangulate": "photorecon.poses.triangulate",
     "photorecon.scale": "photorecon.poses.scale",
+    "photorecon.scene": "photorecon.mesh.scene",
+    "photorecon.texture": "photorecon.mesh.texture",
 }
 
 
@@ -73,7 +75,7 @@ _LAZY = {
     "clean": "photorecon.mesh",
     "export": "photorecon.mesh",
     "load_mesh": "photorecon.mesh",
-    "TextureConfig": "photorecon.texture",
+    "TextureConfig": "photorecon.mesh.texture",
     "ClusterConfig": "photorecon.distributed",
     "SynthConfig": "photorecon.synthetic",
     "synthesize": "photorecon.synthetic",

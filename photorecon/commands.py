@@ -519,7 +519,7 @@ def _run_reconstruct(args):
     from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
     from .poses.scale import ScaleConfig
     from .poses.sfm import SfMConfig
-    from .texture import TextureConfig
+    from .mesh.texture import TextureConfig
 
     _apply_quality(args)
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
@@ -648,7 +648,7 @@ def _run_view(args):
 
 @command
 def texture(sub):
-    from .texture import TextureConfig
+    from .mesh.texture import TextureConfig
 
     p = sub.add_parser("texture", help="bake a UV-textured mesh from the photos of a reconstruct output",
                        description="Textures OUT/mesh.ply (or --mesh) from OUT/images with the cameras in OUT/sparse/0 "
@@ -669,7 +669,7 @@ def _run_texture(args):
     from pathlib import Path
 
     from .errors import OutputError
-    from .texture import TextureConfig, check_config, texture_output
+    from .mesh.texture import TextureConfig, check_config, texture_output
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     check_config(cfg)

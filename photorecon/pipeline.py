@@ -48,7 +48,7 @@ from .poses.sfm import SfMConfig
 from .layout import Layout
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
-from .texture import TextureConfig
+from .mesh.texture import TextureConfig
 
 log = logging.getLogger("photorecon")
 
@@ -211,7 +211,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
     if run.texture:
-        from .texture import check_config
+        from .mesh.texture import check_config
 
         check_config(cfgs.texture)  # a bad --atlas-size fails before anything is written
     if run.depth != "mvs" and not Path(run.depth).is_dir():
@@ -338,7 +338,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
 
         # 4. optional: a UV-textured mesh baked from the photos: OUT/textured/
         if run.texture:
-            from .texture import texture_output
+            from .mesh.texture import texture_output
 
             def texture() -> dict:
                 mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))

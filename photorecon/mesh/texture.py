@@ -39,13 +39,13 @@ import cv2
 import numpy as np
 import trimesh
 
-from .cameras import View, project
-from .errors import BadArgumentError, EmptyMeshError, TextureError
-from .io.images import sample_bilinear
-from .layout import Layout
-from .mesh import harmonic_fill
-from .progress import bar
-from .resources import available_bytes
+from ..cameras import View, project
+from ..errors import BadArgumentError, EmptyMeshError, TextureError
+from ..io.images import sample_bilinear
+from ..layout import Layout
+from .clean import harmonic_fill
+from ..progress import bar
+from ..resources import available_bytes
 
 log = logging.getLogger("photorecon")
 
@@ -103,7 +103,7 @@ def face_view_quality(mesh: trimesh.Trimesh, views: list[View], masks: Callable[
                       min_cos: float = 0.1, scene=None) -> np.ndarray:
     """(F, V) float32: the projected area in pixels of face f in view v where v sees f (see the module
     docstring), else 0."""
-    from .mesh import raycasting_scene
+    from .clean import raycasting_scene
     import open3d as o3d
 
     scene = scene or raycasting_scene(mesh)
@@ -440,7 +440,7 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
     check_atlas_memory(cfg.atlas_size)
     faces_in = len(mesh.faces)
     if cfg.texture_faces and faces_in > cfg.texture_faces:
-        from .mesh import simplify
+        from .clean import simplify
 
         mesh = simplify(mesh, cfg.texture_faces)
         log.info("texture: mesh simplified from %d to %d faces", faces_in, len(mesh.faces))
@@ -548,7 +548,7 @@ def export_textured(mesh: trimesh.Trimesh, folder: str | Path) -> Path:
     (a temporary folder renamed onto ``folder``)."""
     from PIL import Image
 
-    from .stages import atomic_dir
+    from ..stages import atomic_dir
 
     folder = Path(folder)
     img = mesh.visual.material.baseColorTexture
@@ -577,9 +577,9 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     images/, masks in masks/): the mesh ``mesh_path`` (default ``out``/mesh.ply) or ``mesh`` -> ``dest``
     (default ``out``/textured/) with mesh.obj, mesh.mtl, texture.png, mesh.glb and preview.png. Returns facts
     for the report."""
-    from .io.dataset import Dataset
-    from .io.output import MARKER
-    from .mesh import load_mesh
+    from ..io.dataset import Dataset
+    from ..io.output import MARKER
+    from .export import load_mesh
 
     cfg = cfg or TextureConfig()
     check_config(cfg)
@@ -598,7 +598,7 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
 
     res = texture_mesh(mesh, views, images, cfg, masks)
     dest = Path(dest) if dest else Layout(out).textured
-    from .preview import render_preview
+    from ..preview import render_preview
 
     tmp_preview = dest.with_name(f".{dest.name}.preview.png")
     try:
