@@ -31,6 +31,7 @@ _ALIASES = {
     "photorecon.scale": "photorecon.poses.scale",
     "photorecon.scene": "photorecon.mesh.scene",
     "photorecon.texture": "photorecon.mesh.texture",
+    "photorecon.preview": "photorecon.report.preview",
 }
 
 

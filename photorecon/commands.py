@@ -201,7 +201,7 @@ def _run_eval(args):
 
         from .mesh import export
         from .metrics import cloud_metrics, error_colors, icp_refine, load_reference, mesh_metrics
-        from .preview import render_preview
+        from .report.preview import render_preview
 
         if args.crop_to_reference is not None and not args.crop_to_reference >= 0:
             raise BadArgumentError(f"--crop-to-reference: expected a margin >= 0, got {args.crop_to_reference}")

@@ -183,7 +183,7 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
     -> ``layout.viewer_mesh``, and preview.png rendered from that copy (a few hundred pixels a side show no
     more than its faces)."""
     from .mesh import export
-    from .preview import render_preview
+    from .report.preview import render_preview
 
     from .resources import release_memory
 
@@ -240,7 +240,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
     from .mesh import export, load_mesh
-    from .preview import render_preview
+    from .report.preview import render_preview
     from .poses.scale import given_units, scale_output
     from .poses.sfm import run_sfm
 

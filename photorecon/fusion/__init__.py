@@ -60,7 +60,7 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     from ..io.output import output_folder
     from ..layout import Layout
     from ..mesh import CleanConfig
-    from ..preview import render_preview
+    from ..report.preview import render_preview
 
     cfg = cfg or FusionConfig()
     ds = Dataset.open(root, depth_dir, masks_dir)

@@ -598,7 +598,7 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
 
     res = texture_mesh(mesh, views, images, cfg, masks)
     dest = Path(dest) if dest else Layout(out).textured
-    from ..preview import render_preview
+    from ..report.preview import render_preview
 
     tmp_preview = dest.with_name(f".{dest.name}.preview.png")
     try:
