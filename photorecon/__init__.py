@@ -32,6 +32,8 @@ _ALIASES = {
     "photorecon.scene": "photorecon.mesh.scene",
     "photorecon.texture": "photorecon.mesh.texture",
     "photorecon.preview": "photorecon.report.preview",
+    "photorecon.commands": "photorecon.cli.commands",
+    "photorecon.config": "photorecon.cli.config",
 }
 
 

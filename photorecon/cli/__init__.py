@@ -1,7 +1,13 @@
 """Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns every failure
 into one line on stderr and an exit code: a ``PhotoreconError`` its class's code, a parse error or an
 out-of-range value 2, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
-SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes)."""
+SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes).
+
+- ``config``: the command line built from the stage configs (every field a ``--STAGE.NAME`` flag with its
+  help, choices and range), settings files, presets, and ``config_from_args`` back to the configs.
+- ``commands``: one function per sub-command (``reconstruct``, ``sfm``, ``mvs``, ``fuse``, ``view``, ...),
+  each registered with ``@command``.
+"""
 from __future__ import annotations
 
 import argparse
@@ -9,9 +15,9 @@ import logging
 import signal
 import sys
 
-from . import __version__
+from .. import __version__
 from .config import COMMANDS, Parser, apply_settings_file
-from .errors import InternalError, PhotoreconError, from_os_error
+from ..errors import InternalError, PhotoreconError, from_os_error
 
 log = logging.getLogger("photorecon")
 
@@ -106,7 +112,7 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO,
                         format="%(message)s")
-    from . import progress
+    from .. import progress
 
     progress.set_enabled(not args.quiet)
     if not getattr(args, "func", None):

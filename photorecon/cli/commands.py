@@ -83,7 +83,7 @@ def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
 
 
 def _cluster_args(p: argparse.ArgumentParser) -> None:
-    from .distributed import ClusterConfig
+    from ..distributed import ClusterConfig
 
     add_config_arguments(p.add_argument_group("cluster (Dask)"), ClusterConfig)
 
@@ -95,7 +95,7 @@ def _masks_arg(p: argparse.ArgumentParser, what: str) -> None:
 
 @command
 def synth(sub):
-    from .synthetic import SynthConfig
+    from ..synthetic import SynthConfig
 
     p = sub.add_parser("synth", help="render a mesh or built-in scene to images, depth, masks and cameras",
                        description="Render a synthetic dataset with ground truth (see the README for the layout).")
@@ -105,7 +105,7 @@ def synth(sub):
 
 
 def _run_synth(args):
-    from .synthetic import SynthConfig, synthesize
+    from ..synthetic import SynthConfig, synthesize
 
     cfg = config_from_args(SynthConfig, args)
     res = synthesize(cfg, args.out, overwrite=args.overwrite)
@@ -115,8 +115,8 @@ def _run_synth(args):
 
 @command
 def fuse(sub):
-    from .fusion import FusionConfig
-    from .mesh import CleanConfig
+    from ..fusion import FusionConfig
+    from ..mesh import CleanConfig
 
     p = sub.add_parser("fuse", help="fuse a dataset's depth maps into one mesh (TSDF or grid)",
                        description="Fuse DATASET/depth/*.npy (synth layout, cameras from sparse/0 or "
@@ -134,11 +134,11 @@ def fuse(sub):
 
 
 def _run_fuse(args):
-    from .fusion import FusionConfig, fuse_dataset
-    from .mesh import CleanConfig, parse_formats
+    from ..fusion import FusionConfig, fuse_dataset
+    from ..mesh import CleanConfig, parse_formats
 
     formats = parse_formats(args.formats)
-    from .distributed import ClusterConfig
+    from ..distributed import ClusterConfig
 
     path = fuse_dataset(args.dataset, args.out, config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), args.depth_dir, args.overwrite, formats,
@@ -184,7 +184,7 @@ def _run_eval(args):
 
     import numpy as np
 
-    from .errors import BadArgumentError, OutputError
+    from ..errors import BadArgumentError, OutputError
 
     report = {}
     inputs = {Path(p).resolve() for p in (args.mesh, args.gt, args.poses, args.ref) if p}
@@ -199,9 +199,9 @@ def _run_eval(args):
             raise BadArgumentError("eval: --mesh and --gt go together")
         import trimesh
 
-        from .mesh import export
-        from .metrics import cloud_metrics, error_colors, icp_refine, load_reference, mesh_metrics
-        from .report.preview import render_preview
+        from ..mesh import export
+        from ..metrics import cloud_metrics, error_colors, icp_refine, load_reference, mesh_metrics
+        from ..report.preview import render_preview
 
         if args.crop_to_reference is not None and not args.crop_to_reference >= 0:
             raise BadArgumentError(f"--crop-to-reference: expected a margin >= 0, got {args.crop_to_reference}")
@@ -237,8 +237,8 @@ def _run_eval(args):
     if args.poses or args.ref:
         if not (args.poses and args.ref):
             raise BadArgumentError("eval: --poses and --ref go together")
-        from .io.dataset import read_model
-        from .metrics import pose_metrics
+        from ..io.dataset import read_model
+        from ..metrics import pose_metrics
 
         report["poses"] = pose_metrics(read_model(args.poses).views, read_model(args.ref).views)
     if not report:
@@ -258,9 +258,9 @@ def _align_for_eval(result, gt, args):
     """``eval --mesh``: (the result in the truth's frame, the alignment's facts or None, a warning or None).
     Cameras on both sides (--poses/--ref, else beside the files) align the result unless --no-align-poses;
     without, a result whose bounding box does not match the truth's gets a warning."""
-    from .errors import BadArgumentError
-    from .io.dataset import read_model
-    from .metrics import align_by_cameras, cameras_beside, frames_differ
+    from ..errors import BadArgumentError
+    from ..io.dataset import read_model
+    from ..metrics import align_by_cameras, cameras_beside, frames_differ
 
     if args.align_poses is not False:
         est = read_model(args.poses).views if args.poses else cameras_beside(args.mesh)
@@ -337,8 +337,8 @@ def _print_report(report: dict) -> None:
 
 @command
 def sfm(sub):
-    from .poses.scale import ScaleConfig
-    from .poses.sfm import SfMConfig
+    from ..poses.scale import ScaleConfig
+    from ..poses.sfm import SfMConfig
 
     p = sub.add_parser("sfm", help="camera poses for an image folder (COLMAP SfM via pycolmap)",
                        description="Structure from motion: writes OUT/images (undistorted), OUT/sparse/0 "
@@ -357,15 +357,15 @@ def sfm(sub):
 def _run_sfm(args):
     from pathlib import Path
 
-    from .io.output import output_folder
-    from .poses.scale import ScaleConfig, scale_output
-    from .poses.sfm import SfMConfig, check_sfm_masks, run_sfm
+    from ..io.output import output_folder
+    from ..poses.scale import ScaleConfig, scale_output
+    from ..poses.sfm import SfMConfig, check_sfm_masks, run_sfm
 
     _apply_quality(args)
     cfg = config_from_args(SfMConfig, args)
     scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
     if not Path(args.images).exists():  # before the output folder is made
-        from .errors import NoImagesError
+        from ..errors import NoImagesError
 
         raise NoImagesError(f"{args.images}: no such image folder (or video file)")
     if args.masks:
@@ -409,7 +409,7 @@ def convert(sub):
 
 
 def _run_convert(args):
-    from .io.convert import convert_cameras
+    from ..io.convert import convert_cameras
 
     dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world, args.neus_world,
                           tuple(args.bounds) if args.bounds else None)
@@ -419,7 +419,7 @@ def _run_convert(args):
 
 @command
 def mvs(sub):
-    from .depth.mvs import MVSConfig
+    from ..depth.mvs import MVSConfig
 
     p = _depth_parser(sub, "mvs", MVSConfig, _run_mvs,
                       help="dense depth by multi-view stereo on the CPU (no weights, no GPU)",
@@ -445,9 +445,9 @@ def _depth_parser(sub, name: str, cfg_type, func, help: str, description: str,
 
 def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
     """Open the dataset, run ``run(ds, *extra, out, cfg, executor)`` on the chosen cluster (or in process)."""
-    from .distributed import ClusterConfig, executor
-    from .io.dataset import Dataset
-    from .io.output import output_lock
+    from ..distributed import ClusterConfig, executor
+    from ..io.dataset import Dataset
+    from ..io.output import output_lock
 
     ds = Dataset.open(args.dataset, masks_dir=masks)
     out, lock_folder = _dataset_output(ds, args.out, "depth", lambda v: (f"{v.name}.npy", f"{v.name}.conf.npy",
@@ -463,7 +463,7 @@ def _dataset_output(ds, out, default: str, names):
     folder photorecon did not write holding a file it would replace (``names(view)``: the files per view)."""
     from pathlib import Path
 
-    from .io.output import check_apart, check_foreign_files
+    from ..io.output import check_apart, check_foreign_files
 
     root = Path(ds.root)
     out = Path(out) if out else root / default
@@ -477,7 +477,7 @@ def _dataset_output(ds, out, default: str, names):
 
 
 def _run_mvs(args):
-    from .depth.mvs import MVSConfig, run_mvs
+    from ..depth.mvs import MVSConfig, run_mvs
 
     _apply_quality(args)
     ds, rep = _run_depth_tasks(args, run_mvs, MVSConfig, masks=args.masks)
@@ -487,7 +487,7 @@ def _run_mvs(args):
 
 
 def _add_stage_args(p):
-    from .pipeline import StageConfigs
+    from ..pipeline import StageConfigs
 
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
@@ -512,14 +512,14 @@ def reconstruct(sub):
 
 
 def _run_reconstruct(args):
-    from .depth.mvs import MVSConfig
-    from .fusion import FusionConfig
-    from .mesh import CleanConfig
-    from .distributed import ClusterConfig
-    from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
-    from .poses.scale import ScaleConfig
-    from .poses.sfm import SfMConfig
-    from .mesh.texture import TextureConfig
+    from ..depth.mvs import MVSConfig
+    from ..fusion import FusionConfig
+    from ..mesh import CleanConfig
+    from ..distributed import ClusterConfig
+    from ..pipeline import ReconstructConfig, StageConfigs, reconstruct as run
+    from ..poses.scale import ScaleConfig
+    from ..poses.sfm import SfMConfig
+    from ..mesh.texture import TextureConfig
 
     _apply_quality(args)
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
@@ -542,7 +542,7 @@ def _run_reconstruct(args):
 
 @command
 def demo(sub):
-    from .demo import DemoConfig
+    from ..demo import DemoConfig
 
     p = sub.add_parser("demo", help="the built-in demo: synthesize a scene, reconstruct it, measure it",
                        description="Renders a textured scene, reconstructs it from its images alone (SfM + MVS + "
@@ -558,7 +558,7 @@ def demo(sub):
 def _run_demo(args):
     from pathlib import Path
 
-    from .demo import DemoConfig, print_bunny_summary, print_summary, run_bunny_demo, run_demo
+    from ..demo import DemoConfig, print_bunny_summary, print_summary, run_bunny_demo, run_demo
 
     cfg = config_from_args(DemoConfig, args)
     if cfg.scene == "bunny":
@@ -571,7 +571,7 @@ def _run_demo(args):
 
 @command
 def depth(sub):
-    from .depth.mono import MonoConfig
+    from ..depth.mono import MonoConfig
 
     p = _depth_parser(sub, "depth", MonoConfig, _run_depth,
                       help="monocular depth from an ONNX model (MiDaS-style), aligned to the SfM points",
@@ -583,7 +583,7 @@ def depth(sub):
 
 
 def _run_depth(args):
-    from .depth.mono import MonoConfig, run_mono
+    from ..depth.mono import MonoConfig, run_mono
 
     ds, rep = _run_depth_tasks(args, run_mono, MonoConfig, args.model)
     print(f"depth: {rep.views} of {len(ds.views)} views aligned ({rep.inference_ms_per_image:.0f} ms inference, "
@@ -595,7 +595,7 @@ def _run_depth(args):
 
 @command
 def view(sub):
-    from .report import VIEW_MAX_FACES
+    from ..report import VIEW_MAX_FACES
 
     p = sub.add_parser("view", help="look at a result: the mesh and the cameras in a browser (served on localhost)",
                        description="Serves an interactive 3D view of a result (the mesh, the cameras as frusta with "
@@ -617,8 +617,8 @@ def view(sub):
 def _run_view(args):
     import time
 
-    from .errors import BadArgumentError
-    from .report import (VIEW_MAX_FACES, VIEWER_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
+    from ..errors import BadArgumentError
+    from ..report import (VIEW_MAX_FACES, VIEWER_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
                          write_viewer_page)
 
     if args.max_faces is not None and args.max_faces < 4:
@@ -648,7 +648,7 @@ def _run_view(args):
 
 @command
 def texture(sub):
-    from .mesh.texture import TextureConfig
+    from ..mesh.texture import TextureConfig
 
     p = sub.add_parser("texture", help="bake a UV-textured mesh from the photos of a reconstruct output",
                        description="Textures OUT/mesh.ply (or --mesh) from OUT/images with the cameras in OUT/sparse/0 "
@@ -668,13 +668,13 @@ def texture(sub):
 def _run_texture(args):
     from pathlib import Path
 
-    from .errors import OutputError
-    from .mesh.texture import TextureConfig, check_config, texture_output
+    from ..errors import OutputError
+    from ..mesh.texture import TextureConfig, check_config, texture_output
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     check_config(cfg)
-    from .io.dataset import Dataset
-    from .io.output import output_lock
+    from ..io.dataset import Dataset
+    from ..io.output import output_lock
 
     ds = Dataset.open(args.dataset)
     dest = Path(args.out) if args.out else None
@@ -685,7 +685,7 @@ def _run_texture(args):
     _, lock_folder = _dataset_output(ds, target, "textured",
                                      lambda v: [p.name for p in target.iterdir()] if target.is_dir() else [])
     if args.mesh:
-        from .io.output import check_apart
+        from ..io.output import check_apart
 
         check_apart(target, (args.mesh,))
     # the textured folder is replaced as a whole: locked from beside it when it lies outside the dataset
@@ -708,7 +708,7 @@ def warmup(sub):
 
 
 def _run_warmup(args):
-    from .warmup import warm_up
+    from ..warmup import warm_up
 
     r = warm_up()
     how = (f"{len(r['compiled'])} compiled, {len(r['cached'])} already in numba's cache" if r["compiled"]
