@@ -3,78 +3,9 @@ from __future__ import annotations
 
 import argparse
 
-from .config import Ranged, add_config_arguments, apply_preset, command, config_from_args
-
-# Quality presets of ``reconstruct --quality`` (and of ``mvs`` / ``sfm`` for their own stages): settings by
-# ``dest``; a flag the user gives (or a --config file sets) wins over the preset. "default" changes nothing.
-QUALITY_PRESETS: dict[str, dict[str, object]] = {
-    # about 1/4 of the default's depth pixels, half the sources, two pyramid levels, coarser voxels: a quick look
-    "preview": {"sfm.max_image_size": 1024, "sfm.max_features": 4096,
-                "mvs.max_size": 800, "mvs.n_sources": 4, "mvs.filter_sources": 8, "mvs.pm_levels": 2,
-                "mvs.pm_iterations": 3, "mvs.pm_final_iterations": 0,
-                "fusion.voxel_footprints": 2.0},
-    "default": {},
-    # features and depth up to 2400 px, more sources and iterations, finer voxels
-    "high": {"sfm.max_image_size": 2400, "sfm.max_features": 16384,
-             "mvs.max_size": 2400, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
-             "fusion.voxel_footprints": 1.0},
-}
-
-# What -h shows of the commands with many options (the others: --help-all). An option a command lacks is skipped.
-_BASIC = ["-h", "--help-all", "-o", "--overwrite", "-q", "-v", "--config", "--quality", "--force"]
-COMMON_OPTIONS: dict[str, list[str]] = {
-    "reconstruct": _BASIC + ["--scene", "--poses", "--masks", "--texture", "--formats", "--depth-model",
-                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size", "--object",
-                             "--target-faces", "--cluster", "--marker-size"],
-    "sfm": _BASIC + ["--masks", "--intrinsics", "--camera-model", "--max-image-size", "--max-features",
-                     "--matching", "--mapper", "--marker-size", "--video-every"],
-    "mvs": _BASIC + ["--masks", "--mvs", "--max-size", "--n-sources", "--min-consistent", "--min-confidence",
-                     "--cluster"],
-    "fuse": _BASIC + ["--depth-dir", "--masks", "--formats", "--mesher", "--voxel-size", "--trunc-voxels",
-                      "--scene", "--object", "--target-faces", "--crop", "--cluster"],
-}
-
-
-# -h texts of common options whose full help (in --help-all) is longer than two lines
-SHORT_HELP: dict[str, str] = {
-    "--quality": "preview: fast and coarse; default; high: finer and slower (--help-all: what each sets)",
-    "--overwrite": "allow a non-empty output folder not made by photorecon",
-    "--config": "settings file (TOML); flags on the command line win",
-    "--masks": "mask folder (NAME.png, 0 = ignore the pixel; default: alpha channel)",
-    "--intrinsics": "3x3 K text file (pixels): known intrinsics, kept fixed",
-    "--max-image-size": "SfM: longest image side for features, pixels (default: 1600)",
-    "--max-size": "depth: working resolution, longest side in pixels (default: 1600; 0 = full)",
-    "--voxel-size": "TSDF voxel size, scene units (default: from the depth maps' resolution)",
-    "--object": "object on a table or turntable: remove the support under it",
-    "--scene": "auto: detect an object capture; object: remove its support; open: keep the ground",
-    "--target-faces": "simplify the mesh to this many faces (default: 0 = keep)",
-    "--cluster": "run the depth and fusion tasks on Dask: local:N or tcp://HOST:PORT",
-    "--marker-size": "ArUco marker edge length, metres: scale the model to metres",
-    "--depth-model": "monocular depth from this ONNX model (MiDaS-style) instead of MVS",
-    "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
-    "--texture": "also bake a UV-textured mesh from the photos (OUT/textured/)",
-    "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
-    "--matching": "image pairs to match: auto, exhaustive, sequential, spatial (default: auto)",
-    "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",
-    "--mvs": "patchmatch (default) or sweep (a fast plane sweep)",
-    "--min-confidence": "drop depths below this confidence, 0..1 (default: 0.2)",
-    "--mesher": "tsdf (default), grid or poisson",
-    "--crop": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units",
-}
-
-
-def _quality_arg(p: argparse.ArgumentParser, what: str) -> None:
-    def show(name):
-        return ", ".join(f"{d.split('.', 1)[1].replace('_', '-')} {v}" for d, v in QUALITY_PRESETS[name].items()
-                         if d.split(".", 1)[0] in what)
-
-    p.add_argument("--quality", choices=list(QUALITY_PRESETS), default="default",
-                   help=f"preset: preview = fast and coarse ({show('preview')}); high = slower and finer "
-                        f"({show('high')}); flags given override it (default: default)")
-
-
-def _apply_quality(args) -> None:
-    apply_preset(args, QUALITY_PRESETS[getattr(args, "quality", "default") or "default"])
+from .config import Ranged, add_config_arguments, command, config_from_args
+from .evaluation import _align_for_eval, _print_report, _print_thresholds
+from .options import COMMON_OPTIONS, QUALITY_PRESETS, SHORT_HELP, _BASIC, _apply_quality, _quality_arg
 
 
 def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
@@ -252,87 +183,6 @@ def _run_eval(args):
     if args.json_out != "-":
         _print_report(report)
     return 0
-
-
-def _align_for_eval(result, gt, args):
-    """``eval --mesh``: (the result in the truth's frame, the alignment's facts or None, a warning or None).
-    Cameras on both sides (--poses/--ref, else beside the files) align the result unless --no-align-poses;
-    without, a result whose bounding box does not match the truth's gets a warning."""
-    from ..errors import BadArgumentError
-    from ..io.dataset import read_model
-    from ..metrics import align_by_cameras, cameras_beside, frames_differ
-
-    if args.align_poses is not False:
-        est = read_model(args.poses).views if args.poses else cameras_beside(args.mesh)
-        ref = read_model(args.ref).views if args.ref else cameras_beside(args.gt)
-        shared = len({v.name for v in est or ()} & {v.name for v in ref or ()})
-        if est and ref and shared >= 3:
-            moved, facts = align_by_cameras(result, est, ref)
-            return moved, facts, None
-        if args.align_poses:
-            found = ("no cameras beside " + (args.mesh if not est else args.gt) if not (est and ref)
-                     else f"{shared} image names in common")
-            raise BadArgumentError(f"--align-poses: needs the cameras of both sides with at least 3 image names in "
-                                   f"common (--poses and --ref, or sparse/0 or transforms.json beside each file); "
-                                   f"found {found}")
-    why = frames_differ(result, gt)
-    if why is None:
-        return result, None, None
-    hint = ("--align-poses aligns them through their cameras" if args.align_poses is False else
-            "give the cameras of both (--poses and --ref) to align them, or --icp for a small offset")
-    return result, None, f"{why}: are they in the same frame? {hint}"
-
-
-def _print_thresholds(rows: list[dict]) -> None:
-    print(f"  {'tau':>10}  {'accuracy':>9}  {'completeness':>12}  {'F-score':>8}   (fractions within tau)")
-    for t in rows:
-        print(f"  {t['tau']:>10.4g}  {t['precision']:>9.4f}  {t['recall']:>12.4f}  {t['fscore']:>8.4f}")
-
-
-def _print_report(report: dict) -> None:
-    a = report.get("alignment")
-    if a:
-        print(f"aligned through the cameras: {a['views']} shared views, scale {a['scale']:.6g}, camera centres "
-              f"within {a['camera_rms']:.4g} RMS ({100 * a['camera_rms_rel']:.3f}% of their spread)")
-    for w in report.get("warnings", []):
-        print(f"warning: {w}")
-    if report.get("mesh", {}).get("reference") == "points":
-        m = report["mesh"]
-        crop = (f", {m['cropped']} left out beyond {m['crop_margin']:.4g} of its bounding box"
-                if m["crop_margin"] is not None else "")
-        print(f"result vs reference point cloud ({m['reference_points']} points, spacing {m['reference_spacing']:.4g}; "
-              f"{m['result_samples']} result samples{crop})")
-        print(f"  accuracy     mean {m['accuracy_mean']:.4g}  median {m['accuracy_median']:.4g}  (result -> reference)")
-        print(f"  completeness mean {m['completeness_mean']:.4g}  median {m['completeness_median']:.4g}  (reference -> result)")
-        print(f"  chamfer      {m['chamfer']:.4g}")
-        _print_thresholds(m["thresholds"])
-        if m["crop_margin"] is None and m["outside_fraction"] > 0.01:
-            print(f"  note: {100 * m['outside_fraction']:.1f}% of the result lies beyond the largest tau outside the "
-                  "reference's bounding box (background?) and counts as inaccurate; --crop-to-reference MARGIN "
-                  "leaves it out")
-        if min(t["tau"] for t in m["thresholds"]) < m["reference_spacing"]:
-            print("  note: a tau below the reference's point spacing understates accuracy (distances go to the "
-                  "nearest reference point)")
-    elif "mesh" in report:
-        m = report["mesh"]
-        d = m["diagonal"]
-        print(f"mesh vs ground truth (diagonal {d:.4g}, tau {m['tau']:.4g})")
-        print(f"  accuracy     mean {m['accuracy_mean']:.4g}  median {m['accuracy_median']:.4g}")
-        print(f"  completeness mean {m['completeness_mean']:.4g}  median {m['completeness_median']:.4g}")
-        print(f"  chamfer      {m['chamfer']:.4g}  ({100 * m['chamfer'] / d:.3f}% of diagonal)")
-        print(f"  at tau       precision {m['precision']:.4f}  recall {m['recall']:.4f}  F {m['fscore']:.4f}")
-        print(f"  at tau/2     precision {m['precision_half']:.4f}  recall {m['recall_half']:.4f}  F {m['fscore_half']:.4f}")
-        if len(m["thresholds"]) > 2 or m["thresholds"][0]["tau"] != m["tau"]:
-            _print_thresholds(m["thresholds"])
-        if m["crop_margin"] is not None:
-            print(f"  cropped      {m['cropped']} result samples beyond {m['crop_margin']:.4g} of the truth's bounding box")
-        print(f"  normal consistency {m['normal_consistency']:.4f}")
-    if "poses" in report:
-        p = report["poses"]
-        print(f"poses: {p['registered']} of {p['reference_count']} reference images matched")
-        print(f"  rotation error (deg)  mean {p['rot_mean_deg']:.4g}  median {p['rot_median_deg']:.4g}  max {p['rot_max_deg']:.4g}")
-        print(f"  centre error          mean {p['center_mean']:.4g}  median {p['center_median']:.4g}  max {p['center_max']:.4g}"
-              f"  ({100 * p['center_mean_rel']:.4f}% of spread)")
 
 
 @command
