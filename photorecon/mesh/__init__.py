@@ -4,7 +4,8 @@
   (``CleanConfig``, ``clean``); the Open3D conversions.
 - ``support``: for object captures, the plane the object stands on and the support removed.
 - ``scene``: whether a capture is an object or an open scene, from its cameras.
-- ``texture``: a texture atlas from the images (``TextureConfig``, ``texture_output``).
+- ``texture``: a texture atlas from the images (``TextureConfig``, ``texture_output``); ``atlas``: its charts
+  and their packing.
 - ``export``: PLY / OBJ / GLB written atomically; any mesh file loaded.
 
 In-memory meshes are trimesh ``Trimesh`` with ``process=False``: geometry is never rewritten behind the
