@@ -1,13 +1,7 @@
 """Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns every failure
 into one line on stderr and an exit code: a ``PhotoreconError`` its class's code, a parse error or an
 out-of-range value 2, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
-SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes).
-
-- ``config``: the command line built from the stage configs (every field a ``--STAGE.NAME`` flag with its
-  help, choices and range), settings files, presets, and ``config_from_args`` back to the configs.
-- ``commands``: one function per sub-command (``reconstruct``, ``sfm``, ``mvs``, ``fuse``, ``view``, ...),
-  each registered with ``@command``.
-"""
+SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes)."""
 from __future__ import annotations
 
 import argparse
