@@ -160,7 +160,7 @@ def side_by_side(meshes: dict, path: Path, labels: list[str], size: int = 320) -
 
     from .cameras import Intrinsics, View, look_at
     from .io.images import write_image
-    from .preview import bulk_frame
+    from .report.preview import bulk_frame
     from .render import Renderer
 
     ref = next(iter(meshes.values()))

@@ -43,12 +43,12 @@ from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
 from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
-from .scale import ScaleConfig
-from .sfm import SfMConfig
+from .poses.scale import ScaleConfig
+from .poses.sfm import SfMConfig
 from .layout import Layout
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
-from .texture import TextureConfig
+from .mesh.texture import TextureConfig
 
 log = logging.getLogger("photorecon")
 
@@ -183,7 +183,7 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
     -> ``layout.viewer_mesh``, and preview.png rendered from that copy (a few hundred pixels a side show no
     more than its faces)."""
     from .mesh import export
-    from .preview import render_preview
+    from .report.preview import render_preview
 
     from .resources import release_memory
 
@@ -198,7 +198,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 overwrite: bool = False) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
     from .io.output import output_folder
-    from .ingest import VIDEO_SUFFIXES
+    from .poses.ingest import VIDEO_SUFFIXES
     from .mesh import parse_formats
 
     cfgs = cfgs or StageConfigs()
@@ -211,7 +211,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
     if run.texture:
-        from .texture import check_config
+        from .mesh.texture import check_config
 
         check_config(cfgs.texture)  # a bad --atlas-size fails before anything is written
     if run.depth != "mvs" and not Path(run.depth).is_dir():
@@ -222,7 +222,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         check_model_file(run.depth_model)
     masks = Path(run.masks) if run.masks else None
     if masks is not None:  # before anything is written
-        from .sfm import check_sfm_masks
+        from .poses.sfm import check_sfm_masks
 
         check_sfm_masks(images, masks)
     inputs = (images, masks, run.poses, run.depth_model, cfgs.sfm.intrinsics,
@@ -240,9 +240,9 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
     from .io.dataset import Dataset, read_model
     from .io.nerf import write_transforms
     from .mesh import export, load_mesh
-    from .preview import render_preview
-    from .scale import given_units, scale_output
-    from .sfm import run_sfm
+    from .report.preview import render_preview
+    from .poses.scale import given_units, scale_output
+    from .poses.sfm import run_sfm
 
     run = cfgs.run
     layout = Layout(out)
@@ -338,7 +338,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
 
         # 4. optional: a UV-textured mesh baked from the photos: OUT/textured/
         if run.texture:
-            from .texture import texture_output
+            from .mesh.texture import texture_output
 
             def texture() -> dict:
                 mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))

@@ -21,7 +21,7 @@ import numpy as np
 
 def kernels() -> dict[str, object]:
     """Every numba dispatcher (``@njit`` function) defined in the package, by qualified name
-    (``photorecon.fusion._tsdf_weighted_kernel``). Modules that fail to import (an optional dependency
+    (``photorecon.fusion.tsdf._tsdf_weighted_kernel``). Modules that fail to import (an optional dependency
     missing) are skipped."""
     from numba.core.dispatcher import Dispatcher
 

@@ -20,7 +20,7 @@ def test_stage_configs_may_share_a_setting_name():
     import argparse
     import dataclasses
 
-    from photorecon.config import add_config_arguments, config_from_args
+    from photorecon.cli.config import add_config_arguments, config_from_args
 
     @dataclasses.dataclass
     class AlphaConfig:

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from photorecon import cli
-from photorecon.config import Ranged, apply_settings_file, config_from_args, validate
+from photorecon.cli.config import Ranged, apply_settings_file, config_from_args, validate
 from photorecon.errors import BadArgumentError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -203,10 +203,10 @@ def test_unexpected_failure_is_one_line_exit_10(fast_main, parser, monkeypatch, 
 
 def test_settings_resolve_in_order(parser, tmp_path):
     """Config default < preset < settings file < command line."""
-    from photorecon.commands import QUALITY_PRESETS, _apply_quality
+    from photorecon.cli.commands import QUALITY_PRESETS, _apply_quality
     from photorecon.depth.mvs import MVSConfig
     from photorecon.fusion import FusionConfig
-    from photorecon.sfm import SfMConfig
+    from photorecon.poses.sfm import SfMConfig
 
     sp = _commands(parser)["reconstruct"]
 
@@ -269,7 +269,7 @@ def _options_listed(text: str) -> list[str]:
 
 
 def test_short_help_shows_the_common_options(fast_main, parser, capsys):
-    from photorecon.config import config_prefix, field_flag
+    from photorecon.cli.config import config_prefix, field_flag
     from photorecon.pipeline import StageConfigs
 
     short = _help(fast_main, capsys, "reconstruct", "--help")

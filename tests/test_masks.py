@@ -236,7 +236,7 @@ def test_sfm_masks_reach_feature_extraction(tmp_path):
     the control extraction without masks finds keypoints on the textured backdrop."""
     import pycolmap
 
-    from photorecon.sfm import SfMConfig, extract
+    from photorecon.poses.sfm import SfMConfig, extract
     from photorecon.synthetic import SynthConfig, synthesize
 
     synthesize(SynthConfig(scene="blob", rig="ring", views=16, width=320, height=240, points=200, seed=5,
@@ -316,7 +316,7 @@ def test_bad_mask_folders_fail_before_writing(backdrop, tmp_path, capsys):
 def test_alpha_reaches_colmap_masks(rgba, tmp_path):
     """SfM's mask conversion: an image's alpha becomes COLMAP's NAME.EXT.png; a user's mask wins over it;
     an image with neither gets none."""
-    from photorecon.sfm import write_colmap_masks
+    from photorecon.poses.sfm import write_colmap_masks
 
     names = sorted(p.name for p in (rgba / "images").iterdir())[:3]
     images = [(n, 160, 120) for n in names]

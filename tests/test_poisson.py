@@ -9,7 +9,7 @@ from photorecon.fusion import DepthFrame, FusionConfig, fuse, load_frames, orien
 from photorecon.io.dataset import Dataset
 from photorecon.mesh import CleanConfig, boundary_edges, clean
 from photorecon.metrics import mesh_metrics
-from photorecon.preview import bulk_frame
+from photorecon.report.preview import bulk_frame
 from photorecon.testing import synth_scene
 
 

@@ -15,7 +15,7 @@ from photorecon.io.colmap_text import SparseModel, read_colmap_text, write_colma
 from photorecon.io.images import write_image
 from photorecon.io.nerf import write_transforms
 from photorecon.testing import write_gps_jpeg
-from photorecon.scale import (ScaleConfig, apply_similarity, enu_from_geodetic, geodetic_from_enu, given_units,
+from photorecon.poses.scale import (ScaleConfig, apply_similarity, enu_from_geodetic, geodetic_from_enu, given_units,
                               gps_alignment, marker_scale, read_gps, scale_output)
 
 W, H = 640, 480

@@ -8,7 +8,7 @@ import trimesh
 from photorecon.cameras import Intrinsics, View, look_at
 from photorecon.mesh import CleanConfig, clean, to_open3d
 from photorecon.metrics import distance_to
-from photorecon.scene import azimuth_span, camera_rig, framed_fraction
+from photorecon.mesh.scene import azimuth_span, camera_rig, framed_fraction
 from photorecon.synthetic import SynthConfig, make_views
 
 from test_object import PLANE_Z, _fused, _near_plane_area, _object, _table

@@ -11,12 +11,12 @@ from photorecon.cameras import View
 from conftest import tree_hash
 from photorecon.cli import main
 from photorecon.errors import NoImagesError, SfMError
-from photorecon.ingest import ingest_folder
+from photorecon.poses.ingest import ingest_folder
 from photorecon.io.colmap_text import read_colmap_text
 from photorecon.io.convert import convert_cameras
 from photorecon.io.dataset import read_model
 from photorecon.metrics import pose_metrics
-from photorecon.sfm import SfMConfig, run_sfm
+from photorecon.poses.sfm import SfMConfig, run_sfm
 from photorecon.testing import synth_scene
 
 
@@ -226,7 +226,7 @@ def _write_video(path, frames, fps=10):
 
 
 def test_video_frames_every_kth(tmp_path):
-    from photorecon.ingest import video_frames
+    from photorecon.poses.ingest import video_frames
 
     frames = [np.full((48, 64, 3), i * 9, np.uint8) for i in range(25)]
     _write_video(tmp_path / "clip.avi", frames)
@@ -339,7 +339,7 @@ def test_reconstruct_reruns_sfm_with_new_intrinsics(ring_tiny, tmp_path):
 
 def test_choice_of_matching_and_mapper_by_count_and_gps():
     from photorecon.errors import BadArgumentError
-    from photorecon.sfm import choose_mapper, choose_matching
+    from photorecon.poses.sfm import choose_mapper, choose_matching
 
     cfg = SfMConfig(exhaustive_max=80, global_min=500)
     assert choose_matching(cfg, 80, 0) == "exhaustive" and choose_matching(cfg, 80, 80) == "exhaustive"
@@ -358,7 +358,7 @@ def test_sequential_and_spatial_matching_register_every_view_like_exhaustive(rin
     sequentially (3 neighbours by name) or spatially (4 nearest by GPS) registers every view as accurately as
     exhaustive matching, from far fewer pairs; auto above --exhaustive-max picks spatial for geotagged photos."""
     from photorecon.io.images import read_image
-    from photorecon.scale import geodetic_from_enu
+    from photorecon.poses.scale import geodetic_from_enu
     from photorecon.testing import write_gps_jpeg
 
     ref = read_model(ring_tiny / "sparse" / "0").views

@@ -10,7 +10,7 @@ import pytest
 from conftest import tree_hash
 from photorecon.cli import main
 from photorecon.errors import BadArgumentError
-from photorecon.sfm import SfMConfig, run_sfm, write_colmap_masks
+from photorecon.poses.sfm import SfMConfig, run_sfm, write_colmap_masks
 
 
 def test_images_without_a_mask_are_used_whole(tmp_path):

@@ -1,4 +1,4 @@
-"""UV texturing (photorecon/texture.py): fidelity against rendered truth from held-out views, UV semantics,
+"""UV texturing (photorecon/mesh/texture.py): fidelity against rendered truth from held-out views, UV semantics,
 exposure gains, export round trips, the reconstruct stage and bad input."""
 import json
 
@@ -10,7 +10,7 @@ from photorecon.cli import main
 from photorecon.io.dataset import Dataset
 from photorecon.render import Renderer
 from photorecon.synthetic import SynthConfig, make_views
-from photorecon.texture import TextureConfig, estimate_gains, export_textured, face_view_quality, texture_mesh
+from photorecon.mesh.texture import TextureConfig, estimate_gains, export_textured, face_view_quality, texture_mesh
 
 
 def _psnr(a, b, mask):
@@ -180,7 +180,7 @@ def test_bad_input_exit_codes(blob_small, tmp_path, capsys, monkeypatch):
     rc, err = run("--mesh", tmp_path / "far.ply", "-o", tmp_path / "o2")
     assert rc == 9 and "none of the 12 views sees the mesh" in err
     # an atlas larger than memory
-    import photorecon.texture as texture
+    import photorecon.mesh.texture as texture
 
     monkeypatch.setattr(texture, "available_bytes", lambda: 1 << 30)
     rc, err = run("--mesh", blob_small / "gt_mesh.ply", "-o", tmp_path / "o3", "--atlas-size", "16384")

@@ -1,4 +1,4 @@
-"""Sparse points for given cameras (photorecon.triangulate): poses fixed, points on the true surface."""
+"""Sparse points for given cameras (photorecon.poses.triangulate): poses fixed, points on the true surface."""
 import logging
 
 import cv2
@@ -11,7 +11,7 @@ from photorecon.cameras import project
 from photorecon.errors import BadArgumentError, OutputError
 from photorecon.io.colmap_text import SparseModel
 from photorecon.io.dataset import read_model
-from photorecon.triangulate import TriangulateConfig, TriangulateStats, overlap_pairs, triangulate_given
+from photorecon.poses.triangulate import TriangulateConfig, TriangulateStats, overlap_pairs, triangulate_given
 
 from conftest import tree_hash
 

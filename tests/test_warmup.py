@@ -16,7 +16,7 @@ def test_kernel_listing_finds_entries_and_helpers():
     entries = entry_kernels(found)
     # kernels Python calls, and helpers only other kernels call (compiled with them)
     for name in ("photorecon.depth._pm_kernels.pm_pass", "photorecon.depth._pm_kernels.consistency_source",
-                 "photorecon.fusion._tsdf_weighted_kernel"):
+                 "photorecon.fusion.tsdf._tsdf_weighted_kernel"):
         assert name in entries
     for name in ("photorecon.depth._pm_kernels._ncc", "photorecon.depth._pm_kernels._homography"):
         assert name in found and name not in entries

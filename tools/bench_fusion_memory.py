@@ -119,8 +119,9 @@ def child(args) -> dict:
     progress.set_enabled(False)
     sampler = Sampler() if args.profile else None
     if sampler:
-        for mod, name in ((fusion, "load_frames"), (fusion, "tsdf_voxel_size"), (fusion, "_new_grid"),
-                          (fusion, "_integrate_frame"), (fusion, "_extract"), (fusion, "stitch_pieces"),
+        from photorecon.fusion import tsdf as fusion_tsdf
+        for mod, name in ((fusion, "load_frames"), (fusion_tsdf, "tsdf_voxel_size"), (fusion_tsdf, "_new_grid"),
+                          (fusion_tsdf, "_integrate_frame"), (fusion_tsdf, "_extract"), (fusion_tsdf, "stitch_pieces"),
                           (fusion, "surface_report"), (mesh_mod, "clean"), (mesh_mod, "export"),
                           (preview_mod, "render_preview"), (report_mod, "decimate_for_viewer")):
             sampler.wrap(mod, name)

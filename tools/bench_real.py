@@ -38,7 +38,7 @@ from photorecon.fusion import FusionConfig, fuse, load_frames
 from photorecon.io.dataset import Dataset
 from photorecon.mesh import CleanConfig, clean, export, ransac_plane
 from photorecon.metrics import cloud_metrics, load_reference
-from photorecon.preview import render_preview
+from photorecon.report.preview import render_preview
 from photorecon.resources import peak_bytes, reset_peak
 from photorecon.synthetic import SynthConfig, synthesize
 

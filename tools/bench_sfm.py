@@ -31,7 +31,7 @@ from photorecon.cameras import Intrinsics, View
 from photorecon.io.dataset import read_model
 from photorecon.metrics import pose_metrics
 from photorecon.io.colmap import read_colmap_binary
-from photorecon.sfm import SfMConfig, run_sfm
+from photorecon.poses.sfm import SfMConfig, run_sfm
 from photorecon.synthetic import SynthConfig, synthesize
 
 HERZ = Path(__file__).resolve().parents[1] / "../shared/data/herz-jesu-p8"
@@ -111,7 +111,7 @@ LARGE_CHOICES = [("exhaustive", "incremental"), ("exhaustive", "global"), ("sequ
 def geotagged_set(rig: str, n: int, size: str, root: Path, metres_per_unit: float, noise_m: float) -> tuple[Path, list]:
     """``n`` views of the blob on ``rig`` as JPEGs with EXIF GPS (noisy camera centres); the true views."""
     from photorecon.io.images import read_image
-    from photorecon.scale import geodetic_from_enu
+    from photorecon.poses.scale import geodetic_from_enu
     from photorecon.testing import write_gps_jpeg
 
     w, h = (int(x) for x in size.lower().split("x"))

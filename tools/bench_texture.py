@@ -40,7 +40,7 @@ from photorecon.mesh import CleanConfig, clean, load_mesh, simplify
 from photorecon.resources import peak_bytes, reset_peak
 from photorecon.render import Renderer
 from photorecon.synthetic import SynthConfig, make_views, synthesize
-from photorecon.texture import TextureConfig, export_textured, texture_mesh
+from photorecon.mesh.texture import TextureConfig, export_textured, texture_mesh
 
 
 

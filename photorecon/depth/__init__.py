@@ -1,2 +1,9 @@
-"""Per-image depth: multi-view stereo on the CPU (``mvs``), monocular ONNX models aligned to SfM points
-(``mono`` + ``align``)."""
+"""Per-image depth: images with their cameras and sparse points in, a z-depth map (with confidence, and normals
+from PatchMatch) per view out, in ``OUT/depth``.
+
+- ``mvs``: multi-view stereo on the CPU, the orchestration (``MVSConfig``, ``run_mvs``: tasks per view, resume).
+- ``select``: the source views of each view and its depth range; ``sweep``: plane-sweep stereo;
+  ``patchmatch`` (+ ``_pm_kernels``, numba): PatchMatch stereo; ``planar``: the planar prior and texture tests.
+- ``filter``: the multi-view geometric consistency filter.
+- ``mono`` + ``align``: monocular ONNX depth models, aligned to the SfM points.
+"""

@@ -40,12 +40,16 @@ from typing import Callable, Literal
 import cv2
 import numpy as np
 
-from ..cameras import View, backproject_depth, invert_rigid, project, transform_points
+from ..cameras import View
 from ..errors import NoDepthError
 from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
+from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_count_pinhole, _filter_config,
+                     _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
+from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
+from .sweep import plane_sweep
 
 log = logging.getLogger("photorecon")
 
@@ -145,311 +149,12 @@ def _working_view(view: View, max_size: int) -> View:
     return dataclasses.replace(view, intrinsics=intr, extra=dict(view.extra))
 
 
-def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
-    """Rank the other views for ``ref``: shared sparse points weighted by triangulation angle; without
-    points, by viewing-direction similarity and distance. When every view sharing points with ``ref`` sees them
-    at less than ``min_angle_deg`` (a narrow stereo pair), those views are its sources."""
-    c_ref = ref.center
-    scores = []
-    ref_pts = model.points_seen_by(ref.name) if len(model.points) else np.zeros((0, 3))
-    ref_ids = set()
-    if ref.name in model.observations:
-        ref_ids = {int(i) for i in model.observations[ref.name][1] if i >= 0}
-    index = model.point_index() if len(model.points) else {}
-    for v in model.views:
-        if v.name == ref.name:
-            continue
-        c = v.center
-        if np.linalg.norm(c - c_ref) < 1e-9:
-            continue
-        if ref_ids and v.name in model.observations:
-            shared = [index[int(i)] for i in model.observations[v.name][1] if i >= 0 and int(i) in ref_ids and int(i) in index]
-            if not shared:
-                continue
-            P = model.points[shared]
-            a, b = P - c_ref, P - c
-            cos = np.einsum("nc,nc->n", a, b) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
-            ang = np.degrees(np.arccos(np.clip(cos, -1, 1)))
-            w = np.where(ang < cfg.min_angle_deg, 0.0, np.exp(-((ang - 15.0) ** 2) / (2 * 10.0 ** 2)))
-            scores.append((float(w.sum()), v))
-        elif not len(ref_pts):
-            d_ref = ref.cam_from_world[2, :3]
-            d_v = v.cam_from_world[2, :3]
-            ang = np.degrees(np.arccos(np.clip(d_ref @ d_v, -1, 1)))
-            if ang < cfg.min_angle_deg or ang > 60:
-                continue
-            scores.append((float(np.exp(-((ang - 15.0) ** 2) / (2 * 10.0 ** 2))), v))
-    scores.sort(key=lambda s: -s[0])
-    chosen = [v for s, v in scores[: cfg.n_sources] if s > 0]
-    if not chosen and ref_ids:  # only views sharing points at a narrow angle (a short stereo baseline): those
-        chosen = [v for _, v in scores[: cfg.n_sources]]
-    return chosen
-
-
-# Depth-range factors on the sparse points' (1st, 99th) percentiles, per method: PatchMatch searches depth
-# continuously, so a wide range costs it little; the sweep's planes get coarser as its range grows.
-DEPTH_RANGE_FACTORS = {"patchmatch": (0.6, 1.25), "sweep": (1 / 1.1, 1.1)}
-
-
-def depth_range(model, view: View, near: float = DEPTH_RANGE_FACTORS["patchmatch"][0],
-                far: float = DEPTH_RANGE_FACTORS["patchmatch"][1]) -> tuple[float, float] | None:
-    """Depth range of the sparse points seen in ``view``: their 1st percentile x ``near`` to their 99th x ``far``;
-    None without points. The near side is widened most: a surface seen at a grazing angle close to the camera
-    (the ground in front of a facade) yields few SIFT matches, so the points stop well short of it (Herz-Jesu-P8:
-    points from 9.7 m, ground from 6 m)."""
-    pts = model.points_seen_by(view.name)
-    if len(pts) < 5:
-        return None
-    z = (pts @ view.cam_from_world[:3, :3].T + view.cam_from_world[:3, 3])[:, 2]
-    z = z[z > 0]
-    if len(z) < 5:
-        return None
-    lo, hi = np.percentile(z, 1) * near, np.percentile(z, 99) * far
-    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo * 1.001:
-        return None
-    return float(lo), float(hi)
-
-
-def camera_depth_range(views: list[View], view: View) -> tuple[float, float] | None:
-    """Without sparse points: the point nearest to every optical axis is taken as the scene centre, and the
-    depth range is [0.4, 1.6] x its depth in ``view`` (cameras looking at a common object)."""
-    if len(views) < 2:
-        return None
-    A, b = np.zeros((3, 3)), np.zeros(3)
-    for v in views:
-        d = v.cam_from_world[2, :3]
-        P = np.eye(3) - np.outer(d, d)
-        A += P
-        b += P @ v.center
-    try:
-        c = np.linalg.solve(A, b)
-    except np.linalg.LinAlgError:
-        return None
-    z = (view.cam_from_world[:3, :3] @ c + view.cam_from_world[:3, 3])[2]
-    if not z > 0:
-        return None
-    return 0.4 * float(z), 1.6 * float(z)
-
-
-def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, View]], zmin: float, zmax: float,
-                cfg: MVSConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Fronto-parallel plane sweep; returns (depth (h, w), confidence (h, w)) for ``ref``."""
-    H, W = ref_img.shape
-    win = (cfg.window, cfg.window)
-    Kr_inv = np.linalg.inv(ref.intrinsics.K)
-    mu_r = cv2.boxFilter(ref_img, -1, win)
-    var_r = cv2.boxFilter(ref_img * ref_img, -1, win) - mu_r * mu_r
-    inv_depths = np.linspace(1.0 / zmax, 1.0 / zmin, cfg.n_depths)
-    world_from_ref = invert_rigid(ref.cam_from_world)
-    n_src = len(sources)
-    k = min(cfg.best_k, n_src)
-    rel = [s.cam_from_world @ world_from_ref for _, s in sources]
-    nvec = np.array([[0.0, 0.0, 1.0]])
-    # running winner-take-all: best score, its plane index, and the scores of its two neighbouring planes
-    best_s = np.full((H, W), -np.inf, np.float32)
-    best = np.zeros((H, W), np.int32)
-    s_lo = np.full((H, W), -1.0, np.float32)
-    s_hi = np.full((H, W), -1.0, np.float32)
-    prev = np.full((H, W), -1.0, np.float32)
-    for i, inv_d in enumerate(inv_depths):
-        top = [np.full((H, W), -1.0, np.float32) for _ in range(k)]  # running best-k, sorted high to low
-        for j, (img, src) in enumerate(sources):
-            R, t = rel[j][:3, :3], rel[j][:3, 3:4]
-            Hm = src.intrinsics.K @ (R + t @ nvec * inv_d) @ Kr_inv
-            warped = cv2.warpPerspective(img, Hm, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                         borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
-            mu_s = cv2.boxFilter(warped, -1, win)
-            var_s = cv2.boxFilter(warped * warped, -1, win) - mu_s * mu_s
-            cov = cv2.boxFilter(warped * ref_img, -1, win) - mu_r * mu_s
-            zncc = cov / np.sqrt(np.maximum(var_r * var_s, 1e-10))
-            # outside the source image (border -1 inside the window) or textureless: no evidence
-            zncc[(mu_s < -0.01) | (var_s < 1e-5)] = -1.0
-            x = zncc
-            for m in range(k):  # insertion into the sorted best-k
-                hi = np.maximum(top[m], x)
-                x = np.minimum(top[m], x)
-                top[m] = hi
-        score = sum(top) / k
-        # the plane after the current winner gives its upper neighbour score
-        after = best == i - 1
-        s_hi[after] = score[after]
-        win_now = score > best_s
-        best_s[win_now] = score[win_now]
-        best[win_now] = i
-        s_lo[win_now] = prev[win_now]
-        s_hi[win_now] = -1.0
-        prev = score
-    s0 = best_s
-    denom = s_lo - 2 * s0 + s_hi
-    with np.errstate(divide="ignore", invalid="ignore"):
-        off = np.where((denom < -1e-6) & (best > 0) & (best < cfg.n_depths - 1), 0.5 * (s_lo - s_hi) / denom, 0.0)
-    off = np.clip(off, -0.5, 0.5)
-    step = inv_depths[1] - inv_depths[0] if cfg.n_depths > 1 else 0.0
-    inv = inv_depths[best] + off * step
-    depth = (1.0 / inv).astype(np.float32)
-    conf = np.clip(s0, 0, 1).astype(np.float32)
-    # the extreme planes are not minima but limits of the search
-    edge = (best == 0) | (best == cfg.n_depths - 1)
-    conf[edge | (var_r < 1e-5)] = 0  # a textureless reference window has no evidence
-    return depth, conf
-
-
-def _nearest_pixel(uv: np.ndarray, z: np.ndarray, intr) -> np.ndarray:
-    """(N, 2) integer pixel (column, row) nearest to each projection; -1 where behind or outside the image."""
-    with np.errstate(invalid="ignore"):
-        ij = np.round(np.nan_to_num(uv, nan=-1.0)).astype(np.int64)
-        ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < intr.width) & (ij[:, 1] >= 0) & (ij[:, 1] < intr.height)
-    ij[~ok] = -1
-    return ij
-
-
-PLANE_MAX_ANGLE_DEG = 20.0  # the plane test's largest angle between the two views' normals
-
-
-def consistency_count(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
-    """For each depth of ``r``: how many of its ``sources`` (name -> result) confirm it. The depth's world point
-    P goes into the source, whose depth at the nearest pixel gives its point Q. A source confirms P when
-
-    * Q re-projects into ``r`` within ``reproj_px`` pixels of P and within ``rel_depth`` of its depth (ACMM,
-      COLMAP), or
-    * (plane test, both views with normals, ``plane_reproj_px`` > 0) Q re-projects within ``plane_reproj_px``
-      pixels, P and Q each lie within ``reproj_px`` pixel footprints (z / f of ``r``) of the other's tangent
-      plane, and their normals agree within ``PLANE_MAX_ANGLE_DEG``. On a surface seen at a grazing angle two
-      views agree on the surface but not on the point: an error along a source's ray moves Q along the surface,
-      many pixels in ``r``, while it stays within a footprint of it (entry-P10's ground: a median 10 px
-      reprojection error, 0.9 footprints off the plane, normals 6 degrees apart).
-
-    Returns (counts (h, w) int32, sum and number of the point-agreeing pairs' forward-backward reprojection
-    errors in pixels). Pinhole cameras take the compiled path (``_consistency_count_pinhole``), cameras with
-    distortion the numpy one (``_consistency_count_any``)."""
-    views = [r.view] + [sources[s].view for s in r.sources if s in sources]
-    if not any(v.intrinsics.has_distortion for v in views):
-        return _consistency_count_pinhole(r, sources, cfg)
-    return _consistency_count_any(r, sources, cfg)
-
-
-def _consistency_count_any(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
-    """``consistency_count`` for any camera model and the plane test (numpy; distortion through
-    ``cameras.project``)."""
-    d = r.depth
-    valid = d > 0
-    cnt = np.zeros(d.shape, np.int32)
-    err_sum, err_n = 0.0, 0
-    pts, uv = backproject_depth(np.where(valid, d, 0), r.view.intrinsics, r.view.cam_from_world, return_pixels=True)
-    T = r.view.cam_from_world
-    d_ref = d[valid]
-    plane = cfg.plane_reproj_px > 0 and r.normal is not None
-    if plane:
-        tol = cfg.reproj_px * d_ref / r.view.intrinsics.fx  # reproj_px pixel footprints
-        n_ref = r.normal[valid].astype(np.float64) @ T[:3, :3]  # camera -> world
-        cos_max = np.cos(np.radians(PLANE_MAX_ANGLE_DEG))
-    for sname in r.sources:
-        s = sources.get(sname)
-        if s is None or not len(pts):
-            continue
-        # into the source: its depth at the nearest pixel ...
-        intr = s.view.intrinsics
-        uv_s, z = project(pts, intr, s.view.cam_from_world)
-        ij = _nearest_pixel(uv_s, z, intr)
-        ok = ij[:, 0] >= 0
-        ds = np.zeros(len(pts), np.float32)
-        ds[ok] = s.depth[ij[ok, 1], ij[ok, 0]]
-        ok &= ds > 0
-        # ... and back: that depth -> world -> reference pixel and depth
-        pw = transform_points(invert_rigid(s.view.cam_from_world), intr.pixel_rays(ij[ok]) * ds[ok, None])
-        uv_r, zr = project(pw, r.view.intrinsics, T)
-        err = np.linalg.norm(uv_r - uv[ok], axis=1)
-        dr = d_ref[ok]
-        good = (err < cfg.reproj_px) & (np.abs(zr - dr) / dr < cfg.rel_depth)
-        err_sum += float(err[good].sum())
-        err_n += int(good.sum())
-        if plane and s.normal is not None:
-            near = np.flatnonzero(~good & (err < cfg.plane_reproj_px))
-            k = np.flatnonzero(ok)[near]
-            n_s = s.normal[ij[k, 1], ij[k, 0]].astype(np.float64) @ s.view.cam_from_world[:3, :3]
-            D = pw[near] - pts[k]
-            good[near] = ((np.abs(np.einsum("ij,ij->i", D, n_ref[k])) < tol[k])
-                          & (np.abs(np.einsum("ij,ij->i", D, n_s)) < tol[k])
-                          & (np.einsum("ij,ij->i", n_ref[k], n_s) > cos_max))
-        agree = np.zeros(len(pts), bool)
-        agree[np.flatnonzero(ok)] = good
-        cnt[valid] += agree
-    return cnt, err_sum, err_n
-
-
-def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
-    """``consistency_count`` for cameras without distortion, compiled (``_pm_kernels.consistency_source``)."""
-    from . import _pm_kernels as k
-
-    d = np.ascontiguousarray(r.depth, np.float32)
-    cnt = np.zeros(d.shape, np.int32)
-    err_rows = np.zeros(d.shape[0], np.float64)
-    n_rows = np.zeros(d.shape[0], np.int64)
-    Kr = np.asarray(r.view.intrinsics.K, np.float64)
-    Kr_inv = np.linalg.inv(Kr)
-    world_from_ref = invert_rigid(r.view.cam_from_world)
-    none = np.zeros((1, 1, 3), np.float32)
-    plane = cfg.plane_reproj_px > 0 and r.normal is not None
-    normal = np.ascontiguousarray(r.normal, np.float32) if plane else none
-    cos_max = float(np.cos(np.radians(PLANE_MAX_ANGLE_DEG)))
-    for sname in r.sources:
-        s = sources.get(sname)
-        if s is None:
-            continue
-        rel = s.view.cam_from_world @ world_from_ref
-        Ks = np.asarray(s.view.intrinsics.K, np.float64)
-        snormal = np.ascontiguousarray(s.normal, np.float32) if plane and s.normal is not None else none
-        k.consistency_source(d, Kr, Kr_inv, np.ascontiguousarray(rel[:3, :3]), np.ascontiguousarray(rel[:3, 3]),
-                             Ks, np.linalg.inv(Ks), np.ascontiguousarray(s.depth, np.float32), float(cfg.reproj_px),
-                             float(cfg.rel_depth), cnt, err_rows, n_rows, normal, snormal,
-                             float(cfg.plane_reproj_px) if plane else 0.0, cos_max)
-    return cnt, float(err_rows.sum()), int(n_rows.sum())
-
-
-def _filter_config(cfg: MVSConfig, n_views: int) -> MVSConfig:
-    """The consistency filter's settings for a view checked against ``n_views`` others: against one (a stereo
-    pair) it is a left-right check, each depth re-projected into the other view and back within
-    ``pair_reproj_px`` pixels and ``rel_depth``, without the plane test (which admits ``plane_reproj_px``): what
-    fails it is occluded in the other view, or a wrong match."""
-    if n_views != 1 or cfg.pair_reproj_px <= 0:
-        return cfg
-    return dataclasses.replace(cfg, reproj_px=cfg.pair_reproj_px, plane_reproj_px=0.0)
-
-
-def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
-    """Keep depths that at least ``min_consistent`` other views confirm (``consistency_count`` per view); returns
-    the per-view count of agreeing views. ``stats`` gets the mean forward-backward reprojection error (pixels)
-    of the agreeing pairs."""
-    counts = {}
-    err_sum, err_n = 0.0, 0
-    for name, r in results.items():
-        counts[name], e, n = consistency_count(r, results, cfg)
-        err_sum, err_n = err_sum + e, err_n + n
-    if stats is not None:
-        stats["mean_reprojection_px"] = err_sum / err_n if err_n else float("nan")
-    return counts
-
-
-def _filter_plan(model, views: dict[str, tuple], cfg: MVSConfig) -> dict[str, list[str]]:
-    """Per planned view, the views its consistency filter checks: its matching sources, then the next best ranked
-    (``select_sources``) up to ``filter_sources`` in all, among the planned views."""
-    if cfg.filter_sources <= 0 or cfg.min_consistent <= 0:
-        return {}
-    wide = dataclasses.replace(cfg, n_sources=max(cfg.filter_sources, cfg.n_sources))
-    by_name = {v.name: v for v in model.views}
-    out = {}
-    for name, (_, srcs, _, _) in views.items():
-        ranked = [s.name for s in select_sources(model, by_name[name], wide) if s.name in views]
-        out[name] = list(dict.fromkeys(srcs + ranked))[: max(cfg.filter_sources, len(srcs))]
-    return out
-
-
 def _triangulated(dataset):
     """The dataset's model with sparse points triangulated from its images with the cameras held fixed
     (given poses come without points); the model unchanged, with a warning, when that fails."""
     import tempfile
 
-    from ..triangulate import triangulate_given
+    from ..poses.triangulate import triangulate_given
 
     with tempfile.TemporaryDirectory(prefix="photorecon_tri_") as work:
         model = triangulate_given(dataset.layout.images, dataset.model, work)
@@ -483,7 +188,11 @@ def _dataset_view(ctx: _MVSContext, name: str) -> View:
 
 
 _CACHE_SIZE = 12  # images (and masks) per process: a view's sources and itself, with room to spare
+
+
 _GREY_CACHE: dict[tuple, np.ndarray] = {}  # per process: the last few working-resolution grey images
+
+
 _MASK_CACHE: dict[tuple, np.ndarray | None] = {}  # per process: the last few views' masks at working resolution
 
 

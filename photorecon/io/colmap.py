@@ -1,6 +1,6 @@
 """COLMAP binary models through pycolmap (``cameras.bin``, ``images.bin``, ``points3D.bin``).
 
-With ``photorecon.sfm`` and ``photorecon.triangulate``, the only modules that import pycolmap, always inside a
+With ``photorecon.poses.sfm`` and ``photorecon.poses.triangulate``, the only modules that import pycolmap, always inside a
 function (its API changes between versions; pycolmap 4.x: ``image.cam_from_world()`` is a method). Text models
 are read and written without it (``colmap_text``). COLMAP's half-pixel convention is converted here, through
 ``conventions``, as in ``colmap_text``.

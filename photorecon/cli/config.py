@@ -173,7 +173,7 @@ def _field_kind(tp) -> tuple[type | None, bool]:
 def validate(cfg) -> None:
     """Check every field of the config ``cfg`` that declares a range (see the module docstring); raises
     ``BadArgumentError`` naming the flag, the valid values and the value found."""
-    from .errors import BadArgumentError
+    from ..errors import BadArgumentError
 
     hints = typing.get_type_hints(type(cfg))
     for f in dataclasses.fields(cfg):
@@ -466,7 +466,7 @@ def apply_preset(args: argparse.Namespace, values: typing.Mapping[str, object]) 
 
 def _file_value(action: argparse.Action, value, where: str):
     """A settings file's ``value`` for ``action``, parsed and checked like the same text on the command line."""
-    from .errors import BadArgumentError
+    from ..errors import BadArgumentError
 
     if isinstance(action, (argparse.BooleanOptionalAction, argparse._StoreTrueAction, argparse._StoreFalseAction)):
         if not isinstance(value, bool):
@@ -494,7 +494,7 @@ def apply_settings_file(parser: argparse.ArgumentParser, args: argparse.Namespac
     import tomllib
     from pathlib import Path
 
-    from .errors import BadArgumentError, InputDataError
+    from ..errors import BadArgumentError, InputDataError
 
     try:
         data = tomllib.loads(Path(path).read_text(encoding="utf-8"))

@@ -7,8 +7,8 @@ import cv2
 import numpy as np
 import trimesh
 
-from .cameras import Intrinsics, View, invert_rigid, look_at_views, project
-from .io.images import write_image
+from ..cameras import Intrinsics, View, invert_rigid, look_at_views, project
+from ..io.images import write_image
 
 
 def bulk_frame(mesh: trimesh.Trimesh, coverage: float = 97.0, n: int = 20_000) -> tuple[np.ndarray, float]:
@@ -55,7 +55,7 @@ def render_preview(mesh: trimesh.Trimesh, path: str | Path, cameras: list[View] 
     """Render ``mesh`` (its texture unlit, else vertex colours if any, else grey) from ``n`` viewpoints side by
     side, drawing the ``cameras`` as frusta; write a PNG. The views frame the bulk of the surface's area
     (``bulk_frame``), not its bounding box."""
-    from .render import Renderer
+    from ..render import Renderer
 
     if up is None:
         up = (0.0, 0.0, 1.0)

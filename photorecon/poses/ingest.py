@@ -11,10 +11,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .cameras import Intrinsics
-from .errors import BadArgumentError, InputDataError, NoImagesError
-from .io.atomic import atomic_path
-from .io.images import image_write_failed
+from ..cameras import Intrinsics
+from ..errors import BadArgumentError, InputDataError, NoImagesError
+from ..io.atomic import atomic_path
+from ..io.images import image_write_failed
 
 log = logging.getLogger("photorecon")
 
@@ -86,7 +86,7 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
     unreadable and non-image files with one more. Raises ``NoImagesError``
     when fewer than ``min_images`` readable images remain.
     """
-    from .io.images import damaged_image
+    from ..io.images import damaged_image
 
     folder, work = Path(folder), Path(work)
     paths, others = list_images(folder)

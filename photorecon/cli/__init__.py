@@ -9,9 +9,9 @@ import logging
 import signal
 import sys
 
-from . import __version__
+from .. import __version__
 from .config import COMMANDS, Parser, apply_settings_file
-from .errors import InternalError, PhotoreconError, from_os_error
+from ..errors import InternalError, PhotoreconError, from_os_error
 
 log = logging.getLogger("photorecon")
 
@@ -107,7 +107,7 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO,
                         format="%(message)s")
-    from . import progress
+    from .. import progress
 
     progress.set_enabled(not args.quiet)
     if not getattr(args, "func", None):

@@ -144,7 +144,7 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
     from the Open3D mesh ``m`` in place (``mesh.remove_support``). Returns report.json's ``scene`` entry:
     ``mode``, ``detected`` ("object" or "open"), ``reason``, the tests' numbers, and ``support_removed``
     (faces, area, plane, cut) or None; logs one line."""
-    from .mesh import find_support, remove_support
+    from .support import find_support, remove_support
 
     info: dict = {"mode": mode}
     if mode == "object":

@@ -24,11 +24,11 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from .cameras import View
-from .conventions import colmap_from_intrinsics
-from .errors import BadArgumentError, InputDataError, OutputError
-from .io.colmap_text import SparseModel
-from .io.dataset import IMAGE_SUFFIXES
+from ..cameras import View
+from ..conventions import colmap_from_intrinsics
+from ..errors import BadArgumentError, InputDataError, OutputError
+from ..io.colmap_text import SparseModel
+from ..io.dataset import IMAGE_SUFFIXES
 
 log = logging.getLogger("photorecon")
 

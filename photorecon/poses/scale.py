@@ -31,10 +31,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .cameras import rigid
-from .errors import BadArgumentError, InputDataError
-from .layout import Layout
-from .io.colmap_text import SparseModel
+from ..cameras import rigid
+from ..errors import BadArgumentError, InputDataError
+from ..layout import Layout
+from ..io.colmap_text import SparseModel
 
 log = logging.getLogger("photorecon")
 
@@ -164,8 +164,8 @@ def marker_scale(model: SparseModel, image_paths, size: float, dictionary: str =
     taken with the model's cameras (undistorted images with pinhole cameras, or distorted ones with theirs).
     A corner is triangulated when >= 2 views see its marker; a marker counts when all 4 corners reproject
     within ``max_reprojection_px``. Returns ``ScaleResult(scale=None, reason=...)`` when no marker counts."""
-    from .cameras import project
-    from .io.images import read_image
+    from ..cameras import project
+    from ..io.images import read_image
 
     check_marker_size(size)
     paths = _image_paths(model, image_paths)
@@ -317,7 +317,7 @@ def gps_alignment(model: SparseModel, image_paths, min_spread_m: float = 0.5) ->
     the camera centres (``image_paths``: the photos with their EXIF, aligned with the views or a mapping
     name -> path). None, with a warning, when fewer than 3 photos have GPS or their positions (or the camera
     centres) lie nearly on a line (the rotation about it is then unknown)."""
-    from .metrics import umeyama
+    from ..metrics import umeyama
 
     paths = _image_paths(model, image_paths)
     fixes = [(v, read_gps(p)) for v, p in zip(model.views, paths) if p is not None and p.is_file()]
@@ -386,7 +386,7 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
     records the units in transforms.json. Returns {"units": ..., "method": ..., "factor": the scale applied,
     "marker"/"gps": what was measured}; a marker
     or GPS that cannot be used logs a warning and leaves the units at ``base_units``."""
-    from .io.colmap_text import read_colmap_text, write_colmap_text
+    from ..io.colmap_text import read_colmap_text, write_colmap_text
 
     cfg = cfg or ScaleConfig()
     if base_units not in UNITS:
@@ -429,9 +429,9 @@ def scale_output(out: str | Path, photos: str | Path | None, cfg: ScaleConfig | 
 def _record_transforms(model: SparseModel, path: Path, units: str) -> None:
     """Put the (scaled) cameras and ``units`` into the transforms.json that the poses step wrote, keeping its
     other keys (depth and mask paths, ...); rewrite it from the model when it does not match the views."""
-    from .conventions import nerf_from_opencv
-    from .io.atomic import atomic_write_json
-    from .io.nerf import write_transforms
+    from ..conventions import nerf_from_opencv
+    from ..io.atomic import atomic_write_json
+    from ..io.nerf import write_transforms
 
     try:
         data = json.loads(path.read_text()) if path.is_file() else None

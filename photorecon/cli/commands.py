@@ -3,78 +3,8 @@ from __future__ import annotations
 
 import argparse
 
-from .config import Ranged, add_config_arguments, apply_preset, command, config_from_args
-
-# Quality presets of ``reconstruct --quality`` (and of ``mvs`` / ``sfm`` for their own stages): settings by
-# ``dest``; a flag the user gives (or a --config file sets) wins over the preset. "default" changes nothing.
-QUALITY_PRESETS: dict[str, dict[str, object]] = {
-    # about 1/4 of the default's depth pixels, half the sources, two pyramid levels, coarser voxels: a quick look
-    "preview": {"sfm.max_image_size": 1024, "sfm.max_features": 4096,
-                "mvs.max_size": 800, "mvs.n_sources": 4, "mvs.filter_sources": 8, "mvs.pm_levels": 2,
-                "mvs.pm_iterations": 3, "mvs.pm_final_iterations": 0,
-                "fusion.voxel_footprints": 2.0},
-    "default": {},
-    # features and depth up to 2400 px, more sources and iterations, finer voxels
-    "high": {"sfm.max_image_size": 2400, "sfm.max_features": 16384,
-             "mvs.max_size": 2400, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
-             "fusion.voxel_footprints": 1.0},
-}
-
-# What -h shows of the commands with many options (the others: --help-all). An option a command lacks is skipped.
-_BASIC = ["-h", "--help-all", "-o", "--overwrite", "-q", "-v", "--config", "--quality", "--force"]
-COMMON_OPTIONS: dict[str, list[str]] = {
-    "reconstruct": _BASIC + ["--scene", "--poses", "--masks", "--texture", "--formats", "--depth-model",
-                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size", "--object",
-                             "--target-faces", "--cluster", "--marker-size"],
-    "sfm": _BASIC + ["--masks", "--intrinsics", "--camera-model", "--max-image-size", "--max-features",
-                     "--matching", "--mapper", "--marker-size", "--video-every"],
-    "mvs": _BASIC + ["--masks", "--mvs", "--max-size", "--n-sources", "--min-consistent", "--min-confidence",
-                     "--cluster"],
-    "fuse": _BASIC + ["--depth-dir", "--masks", "--formats", "--mesher", "--voxel-size", "--trunc-voxels",
-                      "--scene", "--object", "--target-faces", "--crop", "--cluster"],
-}
-
-
-# -h texts of common options whose full help (in --help-all) is longer than two lines
-SHORT_HELP: dict[str, str] = {
-    "--quality": "preview: fast and coarse; default; high: finer and slower (--help-all: what each sets)",
-    "--overwrite": "allow a non-empty output folder not made by photorecon",
-    "--config": "settings file (TOML); flags on the command line win",
-    "--masks": "mask folder (NAME.png, 0 = ignore the pixel; default: alpha channel)",
-    "--intrinsics": "3x3 K text file (pixels): known intrinsics, kept fixed",
-    "--max-image-size": "SfM: longest image side for features, pixels (default: 1600)",
-    "--max-size": "depth: working resolution, longest side in pixels (default: 1600; 0 = full)",
-    "--voxel-size": "TSDF voxel size, scene units (default: from the depth maps' resolution)",
-    "--object": "object on a table or turntable: remove the support under it",
-    "--scene": "auto: detect an object capture; object: remove its support; open: keep the ground",
-    "--target-faces": "simplify the mesh to this many faces (default: 0 = keep)",
-    "--cluster": "run the depth and fusion tasks on Dask: local:N or tcp://HOST:PORT",
-    "--marker-size": "ArUco marker edge length, metres: scale the model to metres",
-    "--depth-model": "monocular depth from this ONNX model (MiDaS-style) instead of MVS",
-    "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
-    "--texture": "also bake a UV-textured mesh from the photos (OUT/textured/)",
-    "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
-    "--matching": "image pairs to match: auto, exhaustive, sequential, spatial (default: auto)",
-    "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",
-    "--mvs": "patchmatch (default) or sweep (a fast plane sweep)",
-    "--min-confidence": "drop depths below this confidence, 0..1 (default: 0.2)",
-    "--mesher": "tsdf (default), grid or poisson",
-    "--crop": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units",
-}
-
-
-def _quality_arg(p: argparse.ArgumentParser, what: str) -> None:
-    def show(name):
-        return ", ".join(f"{d.split('.', 1)[1].replace('_', '-')} {v}" for d, v in QUALITY_PRESETS[name].items()
-                         if d.split(".", 1)[0] in what)
-
-    p.add_argument("--quality", choices=list(QUALITY_PRESETS), default="default",
-                   help=f"preset: preview = fast and coarse ({show('preview')}); high = slower and finer "
-                        f"({show('high')}); flags given override it (default: default)")
-
-
-def _apply_quality(args) -> None:
-    apply_preset(args, QUALITY_PRESETS[getattr(args, "quality", "default") or "default"])
+from .config import Ranged, add_config_arguments, command, config_from_args
+from .options import COMMON_OPTIONS, QUALITY_PRESETS, SHORT_HELP, _BASIC, _apply_quality, _quality_arg
 
 
 def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
@@ -83,7 +13,7 @@ def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
 
 
 def _cluster_args(p: argparse.ArgumentParser) -> None:
-    from .distributed import ClusterConfig
+    from ..distributed import ClusterConfig
 
     add_config_arguments(p.add_argument_group("cluster (Dask)"), ClusterConfig)
 
@@ -95,7 +25,7 @@ def _masks_arg(p: argparse.ArgumentParser, what: str) -> None:
 
 @command
 def synth(sub):
-    from .synthetic import SynthConfig
+    from ..synthetic import SynthConfig
 
     p = sub.add_parser("synth", help="render a mesh or built-in scene to images, depth, masks and cameras",
                        description="Render a synthetic dataset with ground truth (see the README for the layout).")
@@ -105,7 +35,7 @@ def synth(sub):
 
 
 def _run_synth(args):
-    from .synthetic import SynthConfig, synthesize
+    from ..synthetic import SynthConfig, synthesize
 
     cfg = config_from_args(SynthConfig, args)
     res = synthesize(cfg, args.out, overwrite=args.overwrite)
@@ -115,8 +45,8 @@ def _run_synth(args):
 
 @command
 def fuse(sub):
-    from .fusion import FusionConfig
-    from .mesh import CleanConfig
+    from ..fusion import FusionConfig
+    from ..mesh import CleanConfig
 
     p = sub.add_parser("fuse", help="fuse a dataset's depth maps into one mesh (TSDF or grid)",
                        description="Fuse DATASET/depth/*.npy (synth layout, cameras from sparse/0 or "
@@ -134,11 +64,11 @@ def fuse(sub):
 
 
 def _run_fuse(args):
-    from .fusion import FusionConfig, fuse_dataset
-    from .mesh import CleanConfig, parse_formats
+    from ..fusion import FusionConfig, fuse_dataset
+    from ..mesh import CleanConfig, parse_formats
 
     formats = parse_formats(args.formats)
-    from .distributed import ClusterConfig
+    from ..distributed import ClusterConfig
 
     path = fuse_dataset(args.dataset, args.out, config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), args.depth_dir, args.overwrite, formats,
@@ -184,7 +114,7 @@ def _run_eval(args):
 
     import numpy as np
 
-    from .errors import BadArgumentError, OutputError
+    from ..errors import BadArgumentError, OutputError
 
     report = {}
     inputs = {Path(p).resolve() for p in (args.mesh, args.gt, args.poses, args.ref) if p}
@@ -199,9 +129,9 @@ def _run_eval(args):
             raise BadArgumentError("eval: --mesh and --gt go together")
         import trimesh
 
-        from .mesh import export
-        from .metrics import cloud_metrics, error_colors, icp_refine, load_reference, mesh_metrics
-        from .preview import render_preview
+        from ..mesh import export
+        from ..metrics import cloud_metrics, error_colors, icp_refine, load_reference, mesh_metrics
+        from ..report.preview import render_preview
 
         if args.crop_to_reference is not None and not args.crop_to_reference >= 0:
             raise BadArgumentError(f"--crop-to-reference: expected a margin >= 0, got {args.crop_to_reference}")
@@ -241,8 +171,8 @@ def _run_eval(args):
     if args.poses or args.ref:
         if not (args.poses and args.ref):
             raise BadArgumentError("eval: --poses and --ref go together")
-        from .io.dataset import read_model
-        from .metrics import pose_metrics
+        from ..io.dataset import read_model
+        from ..metrics import pose_metrics
 
         report["poses"] = pose_metrics(read_model(args.poses).views, read_model(args.ref).views)
     if not report:
@@ -263,9 +193,9 @@ def _align_for_eval(result, gt, args):
     Cameras on both sides (--poses/--ref, else beside the files) align the result unless --no-align-poses;
     without, a result whose bounding box does not match the truth's gets a warning (and, once measured, one
     that lies far from the truth everywhere: ``FAR_FROM_TRUTH``)."""
-    from .errors import BadArgumentError
-    from .io.dataset import read_model
-    from .metrics import align_by_cameras, cameras_beside, frames_differ
+    from ..errors import BadArgumentError
+    from ..io.dataset import read_model
+    from ..metrics import align_by_cameras, cameras_beside, frames_differ
 
     if args.align_poses is not False:
         est = read_model(args.poses).views if args.poses else cameras_beside(args.mesh)
@@ -350,8 +280,8 @@ def _print_report(report: dict) -> None:
 
 @command
 def sfm(sub):
-    from .scale import ScaleConfig
-    from .sfm import SfMConfig
+    from ..poses.scale import ScaleConfig
+    from ..poses.sfm import SfMConfig
 
     p = sub.add_parser("sfm", help="camera poses for an image folder (COLMAP SfM via pycolmap)",
                        description="Structure from motion: writes OUT/images (undistorted), OUT/sparse/0 "
@@ -370,15 +300,15 @@ def sfm(sub):
 def _run_sfm(args):
     from pathlib import Path
 
-    from .io.output import output_folder
-    from .scale import ScaleConfig, scale_output
-    from .sfm import SfMConfig, check_sfm_masks, run_sfm
+    from ..io.output import output_folder
+    from ..poses.scale import ScaleConfig, scale_output
+    from ..poses.sfm import SfMConfig, check_sfm_masks, run_sfm
 
     _apply_quality(args)
     cfg = config_from_args(SfMConfig, args)
     scale_cfg = config_from_args(ScaleConfig, args)  # a bad --marker-size fails before anything is written
     if not Path(args.images).exists():  # before the output folder is made
-        from .errors import NoImagesError
+        from ..errors import NoImagesError
 
         raise NoImagesError(f"{args.images}: no such image folder (or video file)")
     if args.masks:
@@ -422,7 +352,7 @@ def convert(sub):
 
 
 def _run_convert(args):
-    from .io.convert import convert_cameras
+    from ..io.convert import convert_cameras
 
     dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world, args.neus_world,
                           tuple(args.bounds) if args.bounds else None)
@@ -432,7 +362,7 @@ def _run_convert(args):
 
 @command
 def mvs(sub):
-    from .depth.mvs import MVSConfig
+    from ..depth.mvs import MVSConfig
 
     p = _depth_parser(sub, "mvs", MVSConfig, _run_mvs,
                       help="dense depth by multi-view stereo on the CPU (no weights, no GPU)",
@@ -458,9 +388,9 @@ def _depth_parser(sub, name: str, cfg_type, func, help: str, description: str,
 
 def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
     """Open the dataset, run ``run(ds, *extra, out, cfg, executor)`` on the chosen cluster (or in process)."""
-    from .distributed import ClusterConfig, executor
-    from .io.dataset import Dataset
-    from .io.output import output_lock
+    from ..distributed import ClusterConfig, executor
+    from ..io.dataset import Dataset
+    from ..io.output import output_lock
 
     ds = Dataset.open(args.dataset, masks_dir=masks)
     out, lock_folder = _dataset_output(ds, args.out, "depth", lambda v: (f"{v.name}.npy", f"{v.name}.conf.npy",
@@ -476,7 +406,7 @@ def _dataset_output(ds, out, default: str, names):
     folder photorecon did not write holding a file it would replace (``names(view)``: the files per view)."""
     from pathlib import Path
 
-    from .io.output import check_apart, check_foreign_files
+    from ..io.output import check_apart, check_foreign_files
 
     root = Path(ds.root)
     out = Path(out) if out else root / default
@@ -490,7 +420,7 @@ def _dataset_output(ds, out, default: str, names):
 
 
 def _run_mvs(args):
-    from .depth.mvs import MVSConfig, run_mvs
+    from ..depth.mvs import MVSConfig, run_mvs
 
     _apply_quality(args)
     ds, rep = _run_depth_tasks(args, run_mvs, MVSConfig, masks=args.masks)
@@ -500,7 +430,7 @@ def _run_mvs(args):
 
 
 def _add_stage_args(p):
-    from .pipeline import StageConfigs
+    from ..pipeline import StageConfigs
 
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
@@ -525,14 +455,14 @@ def reconstruct(sub):
 
 
 def _run_reconstruct(args):
-    from .depth.mvs import MVSConfig
-    from .fusion import FusionConfig
-    from .mesh import CleanConfig
-    from .distributed import ClusterConfig
-    from .pipeline import ReconstructConfig, StageConfigs, reconstruct as run
-    from .scale import ScaleConfig
-    from .sfm import SfMConfig
-    from .texture import TextureConfig
+    from ..depth.mvs import MVSConfig
+    from ..fusion import FusionConfig
+    from ..mesh import CleanConfig
+    from ..distributed import ClusterConfig
+    from ..pipeline import ReconstructConfig, StageConfigs, reconstruct as run
+    from ..poses.scale import ScaleConfig
+    from ..poses.sfm import SfMConfig
+    from ..mesh.texture import TextureConfig
 
     _apply_quality(args)
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
@@ -555,7 +485,7 @@ def _run_reconstruct(args):
 
 @command
 def demo(sub):
-    from .demo import DemoConfig
+    from ..demo import DemoConfig
 
     p = sub.add_parser("demo", help="the built-in demo: synthesize a scene, reconstruct it, measure it",
                        description="Renders a textured scene, reconstructs it from its images alone (SfM + MVS + "
@@ -571,7 +501,7 @@ def demo(sub):
 def _run_demo(args):
     from pathlib import Path
 
-    from .demo import DemoConfig, print_bunny_summary, print_summary, run_bunny_demo, run_demo
+    from ..demo import DemoConfig, print_bunny_summary, print_summary, run_bunny_demo, run_demo
 
     cfg = config_from_args(DemoConfig, args)
     if cfg.scene == "bunny":
@@ -584,7 +514,7 @@ def _run_demo(args):
 
 @command
 def depth(sub):
-    from .depth.mono import MonoConfig
+    from ..depth.mono import MonoConfig
 
     p = _depth_parser(sub, "depth", MonoConfig, _run_depth,
                       help="monocular depth from an ONNX model (MiDaS-style), aligned to the SfM points",
@@ -596,7 +526,7 @@ def depth(sub):
 
 
 def _run_depth(args):
-    from .depth.mono import MonoConfig, run_mono
+    from ..depth.mono import MonoConfig, run_mono
 
     ds, rep = _run_depth_tasks(args, run_mono, MonoConfig, args.model)
     print(f"depth: {rep.views} of {len(ds.views)} views aligned ({rep.inference_ms_per_image:.0f} ms inference, "
@@ -608,7 +538,7 @@ def _run_depth(args):
 
 @command
 def view(sub):
-    from .report import VIEW_MAX_FACES
+    from ..report import VIEW_MAX_FACES
 
     p = sub.add_parser("view", help="look at a result: the mesh and the cameras in a browser (served on localhost)",
                        description="Serves an interactive 3D view of a result (the mesh, the cameras as frusta with "
@@ -630,8 +560,8 @@ def view(sub):
 def _run_view(args):
     import time
 
-    from .errors import BadArgumentError
-    from .report import (VIEW_MAX_FACES, VIEWER_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
+    from ..errors import BadArgumentError
+    from ..report import (VIEW_MAX_FACES, VIEWER_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
                          write_viewer_page)
 
     if args.max_faces is not None and args.max_faces < 4:
@@ -661,7 +591,7 @@ def _run_view(args):
 
 @command
 def texture(sub):
-    from .texture import TextureConfig
+    from ..mesh.texture import TextureConfig
 
     p = sub.add_parser("texture", help="bake a UV-textured mesh from the photos of a reconstruct output",
                        description="Textures OUT/mesh.ply (or --mesh) from OUT/images with the cameras in OUT/sparse/0 "
@@ -681,13 +611,13 @@ def texture(sub):
 def _run_texture(args):
     from pathlib import Path
 
-    from .errors import OutputError
-    from .texture import TextureConfig, check_config, texture_output
+    from ..errors import OutputError
+    from ..mesh.texture import TextureConfig, check_config, texture_output
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     check_config(cfg)
-    from .io.dataset import Dataset
-    from .io.output import output_lock
+    from ..io.dataset import Dataset
+    from ..io.output import output_lock
 
     ds = Dataset.open(args.dataset)
     dest = Path(args.out) if args.out else None
@@ -698,7 +628,7 @@ def _run_texture(args):
     _, lock_folder = _dataset_output(ds, target, "textured",
                                      lambda v: [p.name for p in target.iterdir()] if target.is_dir() else [])
     if args.mesh:
-        from .io.output import check_apart
+        from ..io.output import check_apart
 
         check_apart(target, (args.mesh,))
     # the textured folder is replaced as a whole: locked from beside it when it lies outside the dataset
@@ -721,7 +651,7 @@ def warmup(sub):
 
 
 def _run_warmup(args):
-    from .warmup import warm_up
+    from ..warmup import warm_up
 
     r = warm_up()
     how = (f"{len(r['compiled'])} compiled, {len(r['cached'])} already in numba's cache" if r["compiled"]

@@ -1,0 +1,83 @@
+"""What the sub-commands share: the quality presets (``--quality``), the options ``-h`` shows (the others are in
+``--help-all``) and their short help texts.
+"""
+from __future__ import annotations
+
+import argparse
+
+from .config import apply_preset
+
+
+# Quality presets of ``reconstruct --quality`` (and of ``mvs`` / ``sfm`` for their own stages): settings by
+# ``dest``; a flag the user gives (or a --config file sets) wins over the preset. "default" changes nothing.
+QUALITY_PRESETS: dict[str, dict[str, object]] = {
+    # about 1/4 of the default's depth pixels, half the sources, two pyramid levels, coarser voxels: a quick look
+    "preview": {"sfm.max_image_size": 1024, "sfm.max_features": 4096,
+                "mvs.max_size": 800, "mvs.n_sources": 4, "mvs.filter_sources": 8, "mvs.pm_levels": 2,
+                "mvs.pm_iterations": 3, "mvs.pm_final_iterations": 0,
+                "fusion.voxel_footprints": 2.0},
+    "default": {},
+    # features and depth up to 2400 px, more sources and iterations, finer voxels
+    "high": {"sfm.max_image_size": 2400, "sfm.max_features": 16384,
+             "mvs.max_size": 2400, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
+             "fusion.voxel_footprints": 1.0},
+}
+
+
+# What -h shows of the commands with many options (the others: --help-all). An option a command lacks is skipped.
+_BASIC = ["-h", "--help-all", "-o", "--overwrite", "-q", "-v", "--config", "--quality", "--force"]
+
+
+COMMON_OPTIONS: dict[str, list[str]] = {
+    "reconstruct": _BASIC + ["--scene", "--poses", "--masks", "--texture", "--formats", "--depth-model",
+                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size", "--object",
+                             "--target-faces", "--cluster", "--marker-size"],
+    "sfm": _BASIC + ["--masks", "--intrinsics", "--camera-model", "--max-image-size", "--max-features",
+                     "--matching", "--mapper", "--marker-size", "--video-every"],
+    "mvs": _BASIC + ["--masks", "--mvs", "--max-size", "--n-sources", "--min-consistent", "--min-confidence",
+                     "--cluster"],
+    "fuse": _BASIC + ["--depth-dir", "--masks", "--formats", "--mesher", "--voxel-size", "--trunc-voxels",
+                      "--scene", "--object", "--target-faces", "--crop", "--cluster"],
+}
+
+
+# -h texts of common options whose full help (in --help-all) is longer than two lines
+SHORT_HELP: dict[str, str] = {
+    "--quality": "preview: fast and coarse; default; high: finer and slower (--help-all: what each sets)",
+    "--overwrite": "allow a non-empty output folder not made by photorecon",
+    "--config": "settings file (TOML); flags on the command line win",
+    "--masks": "mask folder (NAME.png, 0 = ignore the pixel; default: alpha channel)",
+    "--intrinsics": "3x3 K text file (pixels): known intrinsics, kept fixed",
+    "--max-image-size": "SfM: longest image side for features, pixels (default: 1600)",
+    "--max-size": "depth: working resolution, longest side in pixels (default: 1600; 0 = full)",
+    "--voxel-size": "TSDF voxel size, scene units (default: from the depth maps' resolution)",
+    "--object": "object on a table or turntable: remove the support under it",
+    "--scene": "auto: detect an object capture; object: remove its support; open: keep the ground",
+    "--target-faces": "simplify the mesh to this many faces (default: 0 = keep)",
+    "--cluster": "run the depth and fusion tasks on Dask: local:N or tcp://HOST:PORT",
+    "--marker-size": "ArUco marker edge length, metres: scale the model to metres",
+    "--depth-model": "monocular depth from this ONNX model (MiDaS-style) instead of MVS",
+    "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
+    "--texture": "also bake a UV-textured mesh from the photos (OUT/textured/)",
+    "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
+    "--matching": "image pairs to match: auto, exhaustive, sequential, spatial (default: auto)",
+    "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",
+    "--mvs": "patchmatch (default) or sweep (a fast plane sweep)",
+    "--min-confidence": "drop depths below this confidence, 0..1 (default: 0.2)",
+    "--mesher": "tsdf (default), grid or poisson",
+    "--crop": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units",
+}
+
+
+def _quality_arg(p: argparse.ArgumentParser, what: str) -> None:
+    def show(name):
+        return ", ".join(f"{d.split('.', 1)[1].replace('_', '-')} {v}" for d, v in QUALITY_PRESETS[name].items()
+                         if d.split(".", 1)[0] in what)
+
+    p.add_argument("--quality", choices=list(QUALITY_PRESETS), default="default",
+                   help=f"preset: preview = fast and coarse ({show('preview')}); high = slower and finer "
+                        f"({show('high')}); flags given override it (default: default)")
+
+
+def _apply_quality(args) -> None:
+    apply_preset(args, QUALITY_PRESETS[getattr(args, "quality", "default") or "default"])

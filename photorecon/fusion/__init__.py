@@ -1,0 +1,105 @@
+"""Fusion: depth maps with their cameras in, one triangle mesh out.
+
+``load_frames`` turns a dataset's depth maps into ``DepthFrame``s; ``fuse`` meshes them with the mesher that
+``FusionConfig.mesher`` names: ``tsdf`` (TSDF fusion; ``chunked`` when the grid exceeds its budget or runs on a
+cluster), ``grid`` (per-view grids merged by voxel ownership), ``poisson`` (screened Poisson, optionally
+watertight). ``fuse_dataset`` and ``fuse_to_files`` add cleaning, export, previews and ``surface_report``
+(how much of the surface no depth map observed). ``legacy_article_fuse`` is the original article's mesher.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import trimesh
+
+from ..cameras import View
+from ..errors import BadArgumentError
+from ..resources import release_memory
+from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
+                      tsdf_fuse_chunked)
+from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
+from .frames import (_resize_to, _sample_depth_points, depth_view, load_frame, load_frames, pixel_footprint,
+                     prepare_depth, scene_diagonal)
+from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
+from .legacy import legacy_article_fuse
+from .points import _area_samples, _point_cloud, observed_points, oriented_points, surface_report
+from .poisson import (_close, _fair_patch, _largest_component, _orient_patches, _patch_colors, _poisson, _supported,
+                      poisson_fuse)
+from .tsdf import (_available_bytes, _band_block_keys, _chunk_size, _depth_max, _extract, _frame_blocks, _grid_bytes,
+                   _in_box, _integrate_blocks, _integrate_frame, _integrate_weighted, _new_grid, _normal_band_blocks,
+                   _tsdf_weighted_kernel, estimate_blocks, planar_normals, stitch_pieces, tsdf_fuse, tsdf_voxel_size)
+
+log = logging.getLogger("photorecon")
+
+
+def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None, executor=None,
+         dataset=None, work_dir=None) -> trimesh.Trimesh:
+    """Fuse depth frames into one mesh with ``cfg.mesher``. TSDF runs in chunks (``tsdf_fuse_chunked``, which
+    reads the depth maps from ``dataset``) when ``cfg.chunk_voxels`` is set or ``executor`` is a distributed one."""
+    if cfg.mesher == "tsdf" and not cfg.watertight:
+        if dataset is not None and (cfg.chunk_voxels or getattr(executor, "distributed", False)):
+            return tsdf_fuse_chunked(dataset, frames, cfg, sparse_points, executor, work_dir)
+        return tsdf_fuse(frames, cfg, sparse_points)
+    if cfg.watertight and cfg.mesher != "poisson":
+        raise BadArgumentError(f"--watertight needs --mesher poisson (got --mesher {cfg.mesher})")
+    if cfg.mesher == "grid":
+        return grid_fuse(frames, cfg)
+    if cfg.mesher == "poisson":
+        return poisson_fuse(frames, cfg)
+    raise BadArgumentError(f"mesher: expected 'tsdf', 'grid' or 'poisson', got {cfg.mesher!r}")
+
+
+def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, depth_dir=None,
+                 overwrite: bool = False, formats: tuple[str, ...] = ("ply",), masks_dir=None, cluster=None):
+    """``photorecon fuse``: dataset folder (synth layout) -> ``out/mesh.ply`` (+ other formats, preview.png).
+    ``masks_dir``: masks (NAME.png or NAME.EXT.png, 0 = ignore) instead of DATASET/masks. ``cluster``: a
+    ``distributed.ClusterConfig`` (TSDF then in chunks, one task each; pieces under OUT/.work). Returns the mesh path."""
+
+    from ..io.dataset import Dataset
+    from ..io.output import output_folder
+    from ..layout import Layout
+    from ..mesh import CleanConfig
+    from ..report.preview import render_preview
+
+    cfg = cfg or FusionConfig()
+    ds = Dataset.open(root, depth_dir, masks_dir)
+    frames = load_frames(ds, cfg)
+    from ..distributed import executor
+
+    with output_folder(out, overwrite, inputs=(root, depth_dir, masks_dir)) as out:
+        layout = Layout(out)
+        cameras = [f.view for f in frames]
+        with executor(cluster) as ex:
+            mesh, _ = fuse_to_files(frames, cfg, clean_cfg or CleanConfig(), layout, formats, cameras,
+                                    ds.model.points, ex, ds, layout.work)
+        from ..report import decimate_for_viewer
+
+        render_preview(decimate_for_viewer(mesh), layout.preview, cameras=cameras)  # a few hundred pixels a side
+        return layout.mesh("ply")
+
+
+def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout, formats: tuple[str, ...],
+                  cameras: list[View], sparse_points: np.ndarray | None = None, executor=None, dataset=None,
+                  work_dir=None) -> tuple[trimesh.Trimesh, dict]:
+    """The fusion stage of ``reconstruct`` and ``fuse``: ``fuse`` -> ``clean`` (floaters judged against
+    ``cameras``) -> ``layout.mesh(fmt)`` for each format. Returns the mesh and its facts (counts and
+    ``surface_report``: watertight, boundary edges, invented fraction), which are also logged."""
+    from ..mesh import clean, export
+
+    fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
+    release_memory()  # the grid's freed pages: the cleaning's peak would stack on them
+    mesh = clean(fused, clean_cfg, cameras=cameras)
+    del fused
+    release_memory()
+    for fmt in formats:
+        export(mesh, layout.mesh(fmt))
+    release_memory()
+    surface = surface_report(mesh, frames)
+    log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
+             "invented", len(frames), len(mesh.vertices), len(mesh.faces), surface["watertight"],
+             surface["boundary_edges"], 100 * surface["invented_fraction"])
+    support = {k: v for k, v in mesh.metadata.items() if k.startswith("support_")}  # the object's support removed
+    scene = {"scene": mesh.metadata["scene"]} if "scene" in mesh.metadata else {}  # what --scene detected and did
+    return mesh, {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
+                  "mesher": cfg.mesher, **surface, **support, **scene}

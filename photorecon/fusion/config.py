@@ -1,0 +1,54 @@
+"""Fusion settings (``FusionConfig``) and the depth frame every mesher takes (``DepthFrame``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from ..cameras import View
+
+
+_BYTES_PER_VOXEL = 4 + 4 + 12  # tsdf, weight, colour (float32)
+
+
+_BLOCK_RES = 16
+
+
+@dataclass
+class FusionConfig:
+    """Settings of the fusion stage (``photorecon fuse``)."""
+
+    mesher: Literal["tsdf", "grid", "poisson"] = field(default="tsdf", metadata={"help": "TSDF fusion, per-view grid meshing, or screened Poisson from the depth maps' oriented points"})
+    voxel_size: float | None = field(default=None, metadata={"help": "TSDF voxel size in scene units (default: --voxel-footprints pixel footprints, coarsened only when the grid would not fit in memory)", "range": (0.0, None), "exclusive_min": True})
+    voxel_footprints: float = field(default=1.5, metadata={"help": "default TSDF voxel in pixel footprints (median depth / focal length, at the depth maps' resolution)", "range": (0.0, 1000.0), "exclusive_min": True})
+    voxels_across: int | None = field(default=None, metadata={"help": "instead: voxel = scene diagonal (sparse points' 1-99%% box) / this", "range": (2, 100_000)})
+    trunc_voxels: float = field(default=2.0, metadata={"help": "TSDF truncation distance, voxels", "range": (0.0, 100.0), "exclusive_min": True})
+    weight_threshold: float = field(default=1.0, metadata={"help": "min. integrated weight (about: views) of an extracted voxel", "range": (0.0, 1e6)})
+    depth_min: float = field(default=0.0, metadata={"help": "ignore depth below this, scene units", "range": (0.0, None)})
+    depth_max: float | None = field(default=None, metadata={"help": "ignore depth beyond this, scene units (default: no limit)", "range": (0.0, None), "exclusive_min": True})
+    conf_threshold: float = field(default=0.0, metadata={"help": "ignore depth whose confidence (NAME.conf.npy, 0..1) is below this", "range": (0.0, 1.0)})
+    use_masks: bool = field(default=True, metadata={"help": "apply masks/NAME.png when present"})
+    normal_sdf: float = field(default=0.2, metadata={"help": "TSDF: signed distance to the confirmed tangent plane, its cosine to the ray at least this (keeps grazing surfaces; 0 = along the ray)", "range": (0.0, 1.0)})
+    normal_sdf_plane_tol: float = field(default=1.5, metadata={"help": "--normal-sdf: a pixel's plane counts where its depth map follows it within this many voxels (0 = everywhere)", "range": (0.0, 100.0)})
+    confidence_weights: bool = field(default=True, metadata={"help": "TSDF: weight each pixel by its confidence map (NAME.conf.npy) when present"})
+    max_stretch: float = field(default=8.0, metadata={"help": "grid: reject triangles whose edge exceeds this many pixel footprints", "range": (0.0, 10_000.0), "exclusive_min": True})
+    chunk_voxels: int | None = field(default=None, metadata={"help": "TSDF in cubic chunks of this many voxels a side, one task each (default: one volume; 256 with --cluster)", "range": (16, 65536)})
+    memory_limit_gb: float | None = field(default=None, metadata={"help": "refuse a voxel grid above this size, GB (default: 60%% of free memory)", "range": (0.0, 1e6), "exclusive_min": True})
+    grid_budget_gb: float | None = field(default=0.5, metadata={"help": "TSDF: largest voxel grid held at once, GB; a larger scene is fused in chunks that each fit (same mesh; 0 = one grid)", "range": (0.0, 1e6)})
+    poisson_depth: int = field(default=0, metadata={"help": "poisson: octree depth (0 = a cell of about 2 pixel footprints, depth 5 to 10)", "range": (0, 16)})
+    poisson_trim: float = field(default=0.02, metadata={"help": "poisson: drop the surface where the sample density is below this quantile of the vertices' densities (0 = off)", "range": (0.0, 1.0)})
+    watertight: bool = field(default=False, metadata={"help": "poisson: close what the cameras never saw into one watertight surface; report.json says how much area was invented"})
+
+
+@dataclass
+class DepthFrame:
+    """One view's depth ready for fusion: z-depth (H, W) float32 (0 = invalid), optional colour (H, W, 3)
+    uint8 and optional per-pixel confidence (H, W) in [0, 1], used as the TSDF integration weight."""
+
+    view: View
+    depth: np.ndarray
+    color: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    normal: np.ndarray | None = None  # (H, W, 3) unit normals in the camera frame (OpenCV axes), 0 = none

@@ -1,0 +1,147 @@
+"""Depth frames: a dataset's depth maps (masked, range-limited, with their confidence and normals) loaded as
+``DepthFrame``s in the view's camera, and the scene scale they imply (diagonal, pixel footprint).
+"""
+from __future__ import annotations
+
+import logging
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..cameras import View, backproject_depth
+from ..errors import BadArgumentError, InputDataError, NoDepthError
+from .config import DepthFrame, FusionConfig
+
+log = logging.getLogger("photorecon")
+
+
+def prepare_depth(view: View, depth: np.ndarray, cfg: FusionConfig, mask: np.ndarray | None = None,
+                  confidence: np.ndarray | None = None) -> np.ndarray:
+    """Validate and filter a depth map: NaN/inf/negative values raise (naming the view); masked,
+    out-of-range and low-confidence pixels become 0."""
+    d = np.asarray(depth, np.float32)
+    H, W = view.intrinsics.height, view.intrinsics.width
+    if d.shape != (H, W):
+        raise BadArgumentError(f"view {view.name}: depth shape {d.shape} does not match its camera (H, W) = ({H}, {W})")
+    if not np.all(np.isfinite(d)) or (d < 0).any():
+        raise BadArgumentError(f"view {view.name}: depth has NaN, inf or negative values; use 0 for missing depth")
+    d = d.copy()
+    if mask is not None and cfg.use_masks:
+        d[~mask] = 0
+    if cfg.depth_min > 0:
+        d[d < cfg.depth_min] = 0
+    if cfg.depth_max:
+        d[d > cfg.depth_max] = 0
+    if confidence is not None and cfg.conf_threshold > 0:
+        d[confidence < cfg.conf_threshold] = 0
+    return d
+
+
+def _sample_depth_points(f: DepthFrame, n: int) -> np.ndarray:
+    """World points of about ``n`` pixels of a depth map, on a regular grid (the invalid ones dropped)."""
+    step = max(1, int(np.sqrt(f.depth.size / n)))
+    sub = np.zeros_like(f.depth)
+    sub[::step, ::step] = f.depth[::step, ::step]
+    return backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world)
+
+
+def scene_diagonal(frames: list[DepthFrame], sparse_points: np.ndarray | None = None) -> float:
+    """Robust scene size: diagonal of the 1-99 percentile box of the sparse points, else of depth samples."""
+    if sparse_points is not None and len(sparse_points) >= 20:
+        pts = np.asarray(sparse_points)
+    else:
+        samples = [_sample_depth_points(f, 2000) for f in frames]
+        pts = np.concatenate(samples) if samples else np.zeros((0, 3))
+    if len(pts) < 4:
+        raise NoDepthError("no valid depth in any view: nothing to fuse")
+    lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
+    return float(np.linalg.norm(hi - lo)) * 1.02
+
+
+def pixel_footprint(frames: list[DepthFrame]) -> float:
+    """The depth maps' pixel footprint on the surfaces the cameras look at, in scene units: per view the
+    median ``z / f`` of the valid pixels of its central window (half the width and height; the whole map when
+    that window has under 5% valid pixels), with ``f`` of the depth map's own intrinsics; the median over
+    views. Far background at the image borders and outlying sparse points do not move it."""
+    per_view = []
+    for f in frames:
+        H, W = f.depth.shape
+        centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
+        z = centre[centre > 0]
+        if z.size < 0.05 * centre.size:
+            z = f.depth[f.depth > 0]
+        if z.size:
+            intr = f.view.intrinsics
+            per_view.append(float(np.median(z)) / (0.5 * (intr.fx + intr.fy)))
+    if not per_view:
+        raise NoDepthError("no valid depth in any view: nothing to fuse")
+    return float(np.median(per_view))
+
+
+def depth_view(view: View, shape: tuple[int, int]) -> View:
+    """``view`` with its intrinsics scaled to a depth map of ``shape`` = (H, W) (a working resolution with
+    the camera's aspect ratio); ``view`` itself when the sizes agree."""
+    h, w = shape
+    if (h, w) == (view.intrinsics.height, view.intrinsics.width):
+        return view
+    return replace(view, intrinsics=view.intrinsics.scaled(w, h))
+
+
+def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = False) -> np.ndarray | None:
+    if img is None or img.shape[:2] == tuple(shape):
+        return img
+    import cv2
+
+    h, w = shape
+    if img.dtype == bool:
+        return cv2.resize(img.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
+
+
+def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
+    """One view's depth frame (see ``load_frames``); None when no pixel is left valid."""
+    raw = dataset.depth(v)
+    dv = depth_view(v, raw.shape)
+    conf = dataset.confidence(v)
+    if conf is not None and conf.shape != raw.shape:
+        raise InputDataError(f"view {v.name}: confidence map has shape {conf.shape}, its depth map {raw.shape}; "
+                             "expected the same (H, W)")
+    depth = prepare_depth(dv, raw, cfg, _resize_to(dataset.mask(v), raw.shape), conf)
+    if not np.count_nonzero(depth):
+        return None
+    try:
+        color = _resize_to(dataset.image(v), raw.shape)
+    except InputDataError:  # colour is optional for fusion
+        color = None
+    normal = dataset.normals(v)
+    if normal is not None and normal.shape != raw.shape + (3,):
+        raise InputDataError(f"view {v.name}: normal map has shape {normal.shape}, its depth map {raw.shape}; "
+                             "expected (H, W, 3)")
+    if normal is not None:
+        normal = normal.astype(np.float16)  # as PatchMatch writes them: half the memory of a frame's largest map
+    return DepthFrame(dv, depth, color, conf, normal)
+
+
+def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> list[DepthFrame]:
+    """Depth frames of a ``Dataset`` (views without a depth map are skipped with a warning).
+
+    A depth map may come at a working resolution other than its camera's (same aspect ratio, e.g. MVS at
+    1600 px for 3072 px photos): its frame then gets the camera's intrinsics scaled to the depth map
+    (``Intrinsics.scaled``), and the image and mask are resized to it."""
+    frames, missing = [], []
+    for v in views or dataset.views:
+        if not dataset.has_depth(v):
+            missing.append(v.name)
+            continue
+        f = load_frame(dataset, v, cfg)
+        if f is None:
+            log.warning("view %s: depth map has no valid pixel; skipped", v.name)
+            continue
+        frames.append(f)
+    if missing:
+        log.warning("%d view(s) without a depth map in %s skipped: %s", len(missing), dataset.depth_dir,
+                    ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
+    if not frames:
+        raise NoDepthError(f"no usable depth map in {dataset.depth_dir}: nothing to fuse")
+    return frames

@@ -1,0 +1,518 @@
+"""TSDF fusion (Open3D tensor ``VoxelBlockGrid``): depth frames in, one mesh out.
+
+Each view's z-depth (masked, range-limited) is integrated into a sparse voxel block grid on the CPU,
+with each pixel weighted by its confidence map when there is one (MVS, a compiled numba kernel on the grid's
+own storage); marching cubes extracts the zero level set. The voxel size defaults to ``voxel_footprints``
+pixel footprints (the median ``z / f`` of the depth maps, at their own resolution, over the central part of
+each view: the surface the camera looks at), coarsened with a warning only when the grid would not fit in
+memory. The legacy ``ScalableTSDFVolume`` is not used: with Open3D 0.20 on the CPU it extracts an empty mesh.
+Where a depth map has normals (PatchMatch) the signed distance is measured to each pixel's tangent plane
+(``normal_sdf``), not along its ray, where the depth map shows that plane going on behind the pixel
+(``planar_normals``): surfaces seen at grazing angles (the ground in front of a facade) then keep a band
+thicker than a voxel and come out whole, and no fin grows behind an object's rim.
+"""
+from __future__ import annotations
+
+import logging
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import trimesh
+from numba import njit, prange
+
+from ..cameras import backproject_depth, camera_center
+from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
+from ..progress import bar
+from ..resources import available_bytes, release_memory
+from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
+from .frames import _sample_depth_points, pixel_footprint, scene_diagonal
+from .grid import _cell_keys
+
+log = logging.getLogger("photorecon")
+
+
+def _available_bytes() -> int:
+    return available_bytes()
+
+
+def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
+    """Unique ``_cell_keys`` of the voxel blocks that the frames' sampled surface points, moved by -trunc, 0 and
+    +trunc along their rays (the truncation band), fall in."""
+    block = voxel * _BLOCK_RES
+    keys = []
+    for f in frames:
+        pts = _sample_depth_points(f, 20000)
+        if not len(pts):
+            continue
+        ray = pts - camera_center(f.view.cam_from_world)
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        keys.append(np.unique(_cell_keys(np.concatenate([pts + s * ray for s in (-trunc, 0.0, trunc)]), block)))
+    return np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+
+
+def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:
+    """Count the voxel blocks the depth maps touch (sampled), with the truncation band: the grid's size."""
+    n = len(_band_block_keys(frames, voxel, trunc))
+    # sampled pixels miss blocks between samples when a pixel is smaller than a block: scale up
+    return int(n * 1.5) + 64
+
+
+def _grid_bytes(frames: list[DepthFrame], voxel: float, trunc_voxels: float) -> tuple[int, int]:
+    n_blocks = estimate_blocks(frames, voxel, trunc_voxels * voxel)
+    return n_blocks, n_blocks * _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # hash map and extraction buffers
+
+
+def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
+                    sparse_points: np.ndarray | None = None) -> tuple[float, int]:
+    """The TSDF voxel size and the estimated number of voxel blocks.
+
+    ``cfg.voxel_size`` when given (refused, naming the memory it needs, when the grid would not fit);
+    else ``cfg.voxel_footprints`` pixel footprints (``pixel_footprint``), or the scene diagonal /
+    ``cfg.voxels_across`` when that is set. An automatic voxel is coarsened, with a warning stating the voxel
+    chosen, only when its grid would exceed ``cfg.memory_limit_gb`` (default 60% of the available memory)."""
+    limit = cfg.memory_limit_gb * (1 << 30) if cfg.memory_limit_gb else 0.6 * _available_bytes()
+    if cfg.voxel_size is not None:
+        voxel = float(cfg.voxel_size)
+        if not voxel > 0:
+            raise BadArgumentError(f"voxel size: expected > 0, got {voxel}")
+        diag = scene_diagonal(frames, sparse_points)
+        if voxel > 0.5 * diag:  # a grid of one or two voxels across: no surface to extract
+            raise BadArgumentError(f"voxel size {voxel:.4g} is larger than the scene, which is about {diag:.3g} "
+                                   f"across; use a smaller --voxel-size (e.g. {diag / 300:.3g}: 300 voxels across)")
+        n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+        if need > limit:
+            raise BadArgumentError(f"voxel size {voxel:.4g} needs about {need / 2**30:.1f} GB for {n_blocks} voxel "
+                                   f"blocks, more than the {limit / 2**30:.1f} GB allowed; use a larger --voxel-size")
+        return voxel, n_blocks
+    if cfg.voxels_across:
+        voxel = scene_diagonal(frames, sparse_points) / cfg.voxels_across
+    else:
+        if not cfg.voxel_footprints > 0:
+            raise BadArgumentError(f"voxel footprints: expected > 0, got {cfg.voxel_footprints}")
+        voxel = cfg.voxel_footprints * pixel_footprint(frames)
+    if not voxel > 0:
+        raise NoDepthError("the depth maps give no scale (zero footprint): nothing to fuse")
+    first = voxel
+    n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+    for _ in range(30):
+        if need <= limit:
+            break
+        # the blocks cover surfaces: their count falls about with the square of the voxel
+        voxel *= max(1.1, 1.05 * np.sqrt(need / limit))
+        n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+    else:
+        raise BadArgumentError(f"no voxel size up to {voxel:.4g} fits the grid in {limit / 2**30:.1f} GB; "
+                               "set --memory-limit-gb or --voxel-size")
+    if voxel != first:
+        log.warning("tsdf: a %.4g voxel would need more than the %.1f GB allowed; coarsened to voxel %.4g "
+                    "(%d blocks, about %.1f GB; --voxel-size or --memory-limit-gb to choose)", first,
+                    limit / 2**30, voxel, n_blocks, need / 2**30)
+    return voxel, n_blocks
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trunc, depth_max,
+                          depth, weight_map, color_img, normal_map, min_cos, tsdf, weight, color):  # pragma: no cover - compiled
+    """One pass over the voxels of the given blocks: project each voxel centre, look up its pixel (nearest,
+    pixel (0, 0) = centre of the top-left pixel) and fold ``weight_map[pixel]`` x the truncated SDF into the
+    running weighted mean (Open3D's update rule with a per-pixel weight instead of 1). Blocks are distinct,
+    so the parallel loop over blocks writes disjoint voxels. Storage layout as Open3D's: voxel (x, y, z) of
+    block ``b`` at ``(b * res + z) * res + y) * res + x``; voxel world position = integer index * voxel.
+
+    ``normal_map`` (H, W, 3) camera-frame unit normals, or a (1, 1, 3) array for none: the SDF is then the
+    distance to the pixel's tangent plane, (depth - z) x |n . (x/z, y/z, 1)| (at least ``min_cos`` x the
+    distance along the ray), not along the ray: on a surface seen at a grazing angle the distance along the
+    ray is many times the true one, so the truncation band below the surface gets thinner than a voxel and
+    marching cubes finds the surface only in stripes."""
+    H, W = depth.shape
+    use_normal = normal_map.shape[0] == H and normal_map.shape[1] == W
+    res = 16
+    inv_trunc = 1.0 / trunc
+    for i in prange(block_keys.shape[0]):
+        base = np.int64(buf_idx[i]) * res * res * res
+        x0 = np.float64(block_keys[i, 0]) * res
+        y0 = np.float64(block_keys[i, 1]) * res
+        z0 = np.float64(block_keys[i, 2]) * res
+        for zv in range(res):
+            Z = (z0 + zv) * voxel
+            for yv in range(res):
+                Y = (y0 + yv) * voxel
+                # camera coordinates at x = 0 of this row, then a step along x per voxel
+                px = R[0, 1] * Y + R[0, 2] * Z + t[0]
+                py = R[1, 1] * Y + R[1, 2] * Z + t[1]
+                pz = R[2, 1] * Y + R[2, 2] * Z + t[2]
+                row = base + (zv * res + yv) * res
+                for xv in range(res):
+                    X = (x0 + xv) * voxel
+                    zc = R[2, 0] * X + pz
+                    if zc <= 0.0:
+                        continue
+                    xc = R[0, 0] * X + px
+                    yc = R[1, 0] * X + py
+                    u = np.floor(fx * xc / zc + cx + 0.5)
+                    v = np.floor(fy * yc / zc + cy + 0.5)
+                    if u < 0.0 or v < 0.0 or u >= W or v >= H:
+                        continue
+                    ui = np.int64(u)
+                    vi = np.int64(v)
+                    d = depth[vi, ui]
+                    if d <= 0.0 or d >= depth_max:
+                        continue
+                    sdf = d - zc
+                    if use_normal:
+                        n0 = normal_map[vi, ui, 0]
+                        n1 = normal_map[vi, ui, 1]
+                        n2 = normal_map[vi, ui, 2]
+                        if n0 * n0 + n1 * n1 + n2 * n2 > 0.25:
+                            rx = (u - cx) / fx
+                            ry = (v - cy) / fy
+                            c = abs(n0 * rx + n1 * ry + n2)
+                            lim = min_cos * np.sqrt(rx * rx + ry * ry + 1.0)
+                            sdf *= max(c, lim)
+                    if sdf < -trunc:
+                        continue
+                    w_new = weight_map[vi, ui]
+                    if w_new <= 0.0:
+                        continue
+                    if sdf > trunc:
+                        sdf = trunc
+                    li = row + xv
+                    w_old = weight[li]
+                    w_sum = w_old + w_new
+                    inv = 1.0 / w_sum
+                    tsdf[li] = (tsdf[li] * w_old + sdf * inv_trunc * w_new) * inv
+                    for c in range(3):
+                        color[li, c] = (color[li, c] * w_old + color_img[vi, ui, c] * w_new) * inv
+                    weight[li] = w_sum
+
+
+def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc: float, depth_max: float,
+                        normal_sdf: float = 0.0) -> None:
+    """TSDF integration with a per-pixel weight (the confidence map), on the grid's own voxel storage: Open3D's
+    ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF
+    (and of the colour, 0..255, mid-grey where the frame has none)."""
+    hm = vbg.hashmap()
+    hm.activate(block_coords)
+    buf, _ = hm.find(block_coords)  # after activate: the storage may have been reallocated
+    T = np.ascontiguousarray(f.view.cam_from_world, np.float64)
+    intr = f.view.intrinsics
+    color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
+    tsdf = vbg.attribute("tsdf").numpy().reshape(-1)
+    weight = vbg.attribute("weight").numpy().reshape(-1)
+    grid_color = vbg.attribute("color").numpy().reshape(-1, 3)
+    normals = np.zeros((1, 1, 3), np.float32)
+    if normal_sdf > 0 and f.normal is not None:
+        normals = np.ascontiguousarray(f.normal, np.float32)
+    with warnings.catch_warnings():  # numba's note that it falls back from an old TBB to OpenMP threads
+        warnings.filterwarnings("ignore", message=".*TBB threading layer")
+        _tsdf_weighted_kernel(np.ascontiguousarray(block_coords.numpy(), np.int32),
+                              np.ascontiguousarray(buf.numpy().ravel(), np.int64), T[:3, :3].copy(), T[:3, 3].copy(),
+                              float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(voxel),
+                              float(trunc), float(depth_max), np.ascontiguousarray(f.depth, np.float32),
+                              np.ascontiguousarray(f.confidence, np.float32), np.ascontiguousarray(color, np.uint8),
+                              normals, float(normal_sdf), tsdf, weight, grid_color)
+
+
+def _new_grid(voxel: float, n_blocks: int):
+    import open3d as o3d
+    import open3d.core as o3c
+
+    return o3d.t.geometry.VoxelBlockGrid(
+        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+        attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=_BLOCK_RES, block_count=max(64, n_blocks),
+        device=o3c.Device("CPU:0"))
+
+
+def _depth_max(frames: list[DepthFrame], trunc: float) -> float:
+    return float(max(f.depth.max() for f in frames)) * 1.01 + trunc
+
+
+def _normal_band_blocks(f: DepthFrame, coords: np.ndarray, voxel: float, trunc: float, min_cos: float) -> np.ndarray:
+    """``coords`` (N, 3) int32 block coordinates (Open3D's: the truncation band, +-trunc along each pixel's ray)
+    and the blocks of the band that ``normal_sdf`` writes: with the SDF measured along the normal, a pixel whose
+    surface makes the cosine c with its ray writes voxels up to trunc / max(c, ``min_cos``) along the ray
+    (every other pixel, sampled every half block). On a surface seen at a grazing angle that band reaches the
+    voxels just below the surface and the surface between rows of pixels, which lie in blocks that the band
+    along the rays never reaches."""
+    sub = np.zeros_like(f.depth)
+    sub[::2, ::2] = f.depth[::2, ::2]
+    nc = f.normal.astype(np.float32)
+    valid = (sub > 0) & (np.einsum("hwc,hwc->hw", nc, nc) > 0.25)
+    pts, uv = backproject_depth(np.where(valid, sub, 0), f.view.intrinsics, f.view.cam_from_world, return_pixels=True)
+    if not len(pts):
+        return coords
+    ij = np.round(uv).astype(np.int64)
+    rays = f.view.intrinsics.pixel_rays(uv)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    n = nc[ij[:, 1], ij[:, 0]].astype(np.float64)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    half = trunc / np.maximum(np.abs(np.einsum("ij,ij->i", rays, n)), min_cos)  # along the ray
+    far = half > 1.5 * trunc
+    if not far.any():
+        return coords
+    block = voxel * _BLOCK_RES
+    step = 0.5 * block
+    k = np.ceil(half[far] / step).astype(np.int64)  # samples each side
+    idx = np.repeat(np.arange(int(far.sum())), 2 * k + 1)
+    start = np.repeat(np.cumsum(2 * k + 1) - (2 * k + 1), 2 * k + 1)
+    t = (np.arange(len(idx)) - start - np.repeat(k, 2 * k + 1)) * step
+    t = np.clip(t, -half[far][idx], half[far][idx])
+    u = rays[far] @ f.view.cam_from_world[:3, :3]  # camera -> world directions
+    P = pts[far][idx] + t[:, None] * u[idx]
+    extra = np.floor(P / block).astype(np.int32)
+    return np.ascontiguousarray(np.unique(np.concatenate([coords.astype(np.int32), extra]), axis=0))
+
+
+def planar_normals(f: DepthFrame, trunc: float, min_cos: float, tol: float, min_px: float = 2.0,
+                   max_px: float = 8.0) -> np.ndarray:
+    """``f.normal`` (H, W, 3) with the normals zeroed where the tangent-plane SDF is not justified.
+
+    With ``normal_sdf`` a pixel writes its tangent plane into the voxels along its ray up to s = trunc /
+    max(cos, ``min_cos``) behind its depth X, as lying under the plane. That claim holds where the plane goes
+    on behind X: under the ground it does, but behind an object's rim (a limb, where the ray grazes a curved
+    surface) the ray runs on into empty space and the plane would grow a fin there. The voxel X + s ray lies
+    under the plane's point Q = X + s ray + s cos n (n towards the camera), which the camera sees a few
+    pixels from X in the image direction of n. So a pixel keeps its normal only where its own depth map shows
+    the plane there: the pixels at Q's image offset and half of it (at least ``min_px`` and half of it, at
+    most ``max_px``; ``min_px`` for a limb, whose Q falls on the pixel itself) have a depth within ``tol``
+    (scene units) of the pixel's tangent plane. A pixel whose normal faces its ray (cos near 1) is kept: its
+    plane's distance is the distance along the ray. Camera frame, OpenCV axes; pinhole intrinsics."""
+    d = f.depth
+    H, W = d.shape
+    intr = f.view.intrinsics
+    n_all = np.asarray(f.normal, np.float32)
+    ok = (d > 0) & (np.einsum("hwc,hwc->hw", n_all, n_all) > 0.25)
+    rows, cols = np.nonzero(ok)
+    x = (cols - intr.cx) / intr.fx
+    y = (rows - intr.cy) / intr.fy
+    z = d[rows, cols].astype(np.float64)
+    n = n_all[rows, cols].astype(np.float64)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    ray = np.stack([x, y, np.ones_like(x)], 1)
+    n *= -np.sign(np.einsum("ij,ij->i", n, ray))[:, None]  # towards the camera
+    norm = np.linalg.norm(ray, axis=1)
+    cos = -np.einsum("ij,ij->i", n, ray) / norm
+    s = trunc / np.maximum(cos, min_cos)
+    # image direction of n at X (pixels per unit length along n), and Q's offset from the pixel
+    g = np.stack([intr.fx * (n[:, 0] - x * n[:, 2]), intr.fy * (n[:, 1] - y * n[:, 2])], 1) / z[:, None]
+    g_len = np.linalg.norm(g, axis=1)
+    Q = ray * (z + s / norm)[:, None] + (s * cos)[:, None] * n  # X + s (unit ray) + s cos n
+    Q[:, :2] = Q[:, :2] / Q[:, 2:3]
+    offset = np.hypot((Q[:, 0] - x) * intr.fx, (Q[:, 1] - y) * intr.fy)
+    reach = np.clip(offset, min_px, max_px)
+    plane_d = z * np.einsum("ij,ij->i", n, ray)  # n . X
+    frontal = g_len * z < 1e-3 * 0.5 * (intr.fx + intr.fy)
+    direction = g / np.maximum(g_len, 1e-12)[:, None]
+    keep = np.ones(len(rows), bool)
+    for t in (0.5, 1.0):
+        uu = np.round(cols + t * reach * direction[:, 0]).astype(np.int64)
+        vv = np.round(rows + t * reach * direction[:, 1]).astype(np.int64)
+        inside = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+        uc, vc = np.clip(uu, 0, W - 1), np.clip(vv, 0, H - 1)
+        dq = d[vc, uc].astype(np.float64)
+        xq, yq = (uc - intr.cx) / intr.fx, (vc - intr.cy) / intr.fy
+        off = dq * (n[:, 0] * xq + n[:, 1] * yq + n[:, 2]) - plane_d
+        keep &= frontal | (inside & (dq > 0) & (np.abs(off) <= tol))
+    out = np.zeros_like(n_all)
+    out[rows[keep], cols[keep]] = n_all[rows[keep], cols[keep]]
+    return out
+
+
+def _frame_blocks(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float
+                  ) -> tuple[DepthFrame, np.ndarray, bool]:
+    """What integrating ``f`` takes: the frame as integrated (normals kept only where ``planar_normals``
+    justifies them; weight 1 per valid pixel where the tangent-plane SDF needs the compiled kernel and the
+    frame has no confidence map), the (M, 3) int32 coordinates of the blocks it writes (Open3D's truncation
+    band along the rays, widened by ``_normal_band_blocks``), and whether the compiled weighted kernel
+    integrates it (else Open3D's ``integrate``). ``vbg`` serves Open3D's block search only (any grid with
+    this voxel)."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    intr = f.view.intrinsics
+    if intr.has_distortion:
+        raise BadArgumentError(f"view {f.view.name}: TSDF fusion needs undistorted (pinhole) depth maps")
+    trunc = cfg.trunc_voxels * voxel
+    K = o3c.Tensor(intr.K, o3c.float64)
+    T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
+    depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
+    try:
+        coords = vbg.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, float(cfg.trunc_voxels)).numpy()
+    except RuntimeError as exc:  # Open3D refuses a frame whose few valid pixels touch no block: it adds nothing
+        if "No block is touched" not in str(exc):
+            raise
+        coords = np.zeros((0, 3), np.int32)
+    weighted = f.confidence is not None and cfg.confidence_weights
+    if cfg.normal_sdf > 0 and f.normal is not None:
+        if cfg.normal_sdf_plane_tol > 0:
+            f = replace(f, normal=planar_normals(f, trunc, cfg.normal_sdf, cfg.normal_sdf_plane_tol * voxel))
+        coords = _normal_band_blocks(f, coords, voxel, trunc, cfg.normal_sdf)
+        if not weighted:  # the compiled kernel with weight 1: Open3D's integrate measures along the ray
+            f = replace(f, confidence=(f.depth > 0).astype(np.float32))
+            weighted = True
+    return f, np.ascontiguousarray(coords, np.int32), weighted
+
+
+def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cfg: FusionConfig, voxel: float,
+                      depth_max: float) -> None:
+    """Integrate the frame ``f`` (from ``_frame_blocks``) into the blocks ``coords`` of ``vbg``."""
+    import open3d as o3d
+    import open3d.core as o3c
+
+    if not len(coords):
+        return
+    c = o3c.Tensor(np.ascontiguousarray(coords, np.int32))
+    if weighted:
+        _integrate_weighted(vbg, c, f, voxel, cfg.trunc_voxels * voxel, depth_max, cfg.normal_sdf)
+        return
+    K = o3c.Tensor(f.view.intrinsics.K, o3c.float64)
+    T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
+    depth = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth, np.float32)))
+    color = f.color if f.color is not None else np.full(f.depth.shape + (3,), 180, np.uint8)
+    color = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(color, np.float32) / 255.0))
+    vbg.integrate(c, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
+
+
+def _in_box(coords: np.ndarray, lo, hi) -> np.ndarray:
+    return np.all((coords >= lo) & (coords < hi), axis=1)
+
+
+def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float,
+                     blocks: tuple[np.ndarray, np.ndarray] | None = None) -> int:
+    """Integrate one frame into ``vbg`` (confidence-weighted when it has a confidence map); only the blocks it
+    touches, and with ``blocks`` = (lo, hi) block coordinates only those with lo <= key < hi (a chunk).
+    Returns the number of blocks integrated."""
+    f, coords, weighted = _frame_blocks(vbg, f, cfg, voxel, depth_max)
+    if blocks is not None:
+        coords = coords[_in_box(coords, blocks[0], blocks[1])]
+    _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
+    return int(len(coords))
+
+
+def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Marching cubes on the grid: (vertices (V, 3) float64, faces (F, 3) int64, colours (V, 3) uint8 or None)."""
+    mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
+    V = mesh.vertex.positions.numpy().astype(np.float64)
+    F = mesh.triangle.indices.numpy().astype(np.int64)
+    colors = None
+    if "colors" in mesh.vertex:
+        colors = (np.clip(mesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
+    return V, F, colors
+
+
+def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
+    """Integrate ``frames`` into a VoxelBlockGrid and extract a coloured triangle mesh.
+
+    First every frame's blocks are found (``_frame_blocks``; kept: its block coordinates, and its normals'
+    ``planar_normals`` mask as one bit per pixel). When all the blocks fit in ``cfg.grid_budget_gb`` the grid
+    holds them all; else space is cut into cubic chunks that each fit, and each chunk (with one block layer
+    around it) is integrated from the frames in their order and meshed, keeping the triangles whose centroid
+    lies in its core: the same voxels, values and triangles as one grid (``tsdf_fuse_chunked`` does the same
+    from disk, one task per chunk). Memory: the frames, one chunk's grid and the mesh, whatever the scene's
+    extent."""
+    frames = [f for f in frames if np.count_nonzero(f.depth)]
+    if not frames:
+        raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
+    budget = cfg.grid_budget_gb * (1 << 30) if cfg.grid_budget_gb else 0
+    # chunks bound the grid, so an automatic voxel (bounded by the depth maps' pixel footprint) is not
+    # coarsened for the whole grid's size; a given --voxel-size is still refused when the whole grid would not fit
+    auto = budget and cfg.voxel_size is None
+    voxel, n_blocks = tsdf_voxel_size(frames, replace(cfg, memory_limit_gb=cfg.memory_limit_gb or 1e6)
+                                      if auto else cfg, sparse_points)
+    trunc = cfg.trunc_voxels * voxel
+    depth_max = _depth_max(frames, trunc)
+    probe = _new_grid(voxel, 64)
+    plans = []  # per frame: (coords, planar-normal mask or None, weighted)
+    for f in bar(frames, desc="tsdf blocks"):
+        g, coords, weighted = _frame_blocks(probe, f, cfg, voxel, depth_max)
+        keep = None
+        if g.normal is not None and g.normal is not f.normal:
+            keep = np.packbits(np.any(g.normal != 0, axis=2), axis=None)
+        plans.append((coords, keep, weighted))
+    del probe
+    allb = np.unique(np.concatenate([p[0] for p in plans]), axis=0)
+    per_block = _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # storage, and marching cubes' buffers
+    chunk = None
+    if budget and len(allb) * per_block > budget:
+        chunk = _chunk_size(allb, max(1, int(budget // per_block)))
+    log.debug("tsdf: voxel %.5g, truncation %.5g, %d blocks, %s", voxel, trunc, len(allb),
+              f"chunks of {chunk}^3 blocks" if chunk else "one grid")
+    if chunk is None:
+        boxes = [(None, None, len(allb))]
+    else:
+        ids = np.unique(np.floor_divide(allb, chunk), axis=0)
+        boxes = [(i * chunk, (i + 1) * chunk, None) for i in ids]
+    pieces = []
+    for lo, hi, count in bar(boxes, desc="tsdf fusion", unit="chunk") if chunk else boxes:
+        if count is None:
+            count = int(_in_box(allb, lo - 1, hi + 1).sum())
+        vbg = _new_grid(voxel, int(count * 1.05) + 64)
+        for f, (coords, keep, weighted) in zip(bar(frames, desc="tsdf fusion") if not chunk else frames, plans):
+            if lo is not None:
+                coords = coords[_in_box(coords, lo - 1, hi + 1)]
+                if not len(coords):
+                    continue
+            if keep is not None:
+                mask = np.unpackbits(keep, count=f.depth.size).reshape(f.depth.shape).astype(bool)
+                f = replace(f, normal=np.where(mask[..., None], np.asarray(f.normal, np.float32), np.float32(0)))
+            if weighted and f.confidence is None:
+                f = replace(f, confidence=(f.depth > 0).astype(np.float32))
+            _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
+        V, F, C = _extract(vbg, cfg)
+        del vbg
+        release_memory(collect=False)  # the grid is freed by reference counting
+        if lo is not None and len(F):
+            block = voxel * _BLOCK_RES
+            cen = V[F].mean(axis=1)
+            F = F[np.all((cen >= lo * block) & (cen < hi * block), axis=1)]
+            used = np.unique(F)
+            remap = np.full(len(V), -1, np.int64)
+            remap[used] = np.arange(len(used))
+            V, F, C = V[used], remap[F], (C[used] if C is not None else None)
+        pieces.append((V.astype(np.float32), F.astype(np.int32), C))
+    if sum(len(p[1]) for p in pieces) == 0:
+        raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "
+                             "(lower --weight-threshold or use a larger --voxel-size)")
+    if chunk is None:
+        V, F, C = pieces[0]
+        out = trimesh.Trimesh(V.astype(np.float64), F.astype(np.int64), vertex_colors=C, process=False)
+    else:
+        out = stitch_pieces(pieces)
+    out.metadata["voxel_size"] = voxel
+    out.metadata["mesher"] = "tsdf"
+    out.metadata["chunks"] = len(boxes) if chunk else 1
+    return out
+
+
+def _chunk_size(blocks: np.ndarray, max_blocks: int) -> int:
+    """The largest cubic chunk size (in blocks, a power of two) whose fullest chunk, with the one block layer
+    around it, holds at most ``max_blocks`` of ``blocks`` (at least 2)."""
+    span = int((blocks.max(0) - blocks.min(0)).max()) + 1
+    size = 1 << max(1, int(np.ceil(np.log2(max(span, 2)))))
+    while size > 2:
+        ids, counts = np.unique(np.floor_divide(blocks, size), axis=0, return_counts=True)
+        worst = ids[np.argmax(counts)]
+        if counts.max() * ((size + 2) / size) ** 2 <= max_blocks and \
+                _in_box(blocks, worst * size - 1, (worst + 1) * size + 1).sum() <= max_blocks:
+            break
+        size //= 2
+    return size
+
+
+def stitch_pieces(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]) -> trimesh.Trimesh:
+    """One mesh from chunk pieces: faces concatenated, vertices at the same position (a chunk border: the
+    same marching-cubes vertex computed on both sides) merged into one."""
+    pieces = [p for p in pieces if len(p[1])]
+    if not pieces:
+        raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "
+                             "(lower --weight-threshold or use a larger --voxel-size)")
+    offsets = np.cumsum([0] + [len(p[0]) for p in pieces])
+    V = np.concatenate([p[0] for p in pieces])
+    F = np.concatenate([p[1].astype(np.int64) + o for p, o in zip(pieces, offsets)])
+    has_color = all(p[2] is not None and len(p[2]) == len(p[0]) for p in pieces)
+    uniq, first, inv = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    F = inv.ravel()[F]
+    C = np.concatenate([p[2] for p in pieces])[first] if has_color else None
+    return trimesh.Trimesh(uniq.astype(np.float64), F, vertex_colors=C, process=False)
