@@ -95,15 +95,15 @@ def test_object_keeps_a_ground_seen_from_both_sides():
     assert _near_plane_area(out, 0.05) > 0.5
 
 
-def test_every_command_help_renders_and_offers_object(capsys):
+def test_every_command_help_renders_and_offers_scene(capsys):
     """``--help`` of the commands that clean a mesh renders (a bare % in a setting's help crashed argparse on
-    ``reconstruct --help``) and offers --object."""
+    ``reconstruct --help``) and offers --scene object."""
     from photorecon.cli import main
 
     for cmd in ("reconstruct", "fuse"):
         with pytest.raises(SystemExit) as e:
             main([cmd, "--help"])
-        assert e.value.code == 0 and "--object" in capsys.readouterr().out
+        assert e.value.code == 0 and "--scene {auto,object,open}" in capsys.readouterr().out
 
 
 def test_fuse_command_with_object_leaves_the_object(tmp_path):

@@ -30,14 +30,14 @@ _BASIC = ["-h", "--help-all", "-o", "--overwrite", "-q", "-v", "--config", "--qu
 
 COMMON_OPTIONS: dict[str, list[str]] = {
     "reconstruct": _BASIC + ["--scene", "--poses", "--masks", "--texture", "--formats", "--depth-model",
-                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size", "--object",
+                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size",
                              "--target-faces", "--cluster", "--marker-size"],
     "sfm": _BASIC + ["--masks", "--intrinsics", "--camera-model", "--max-image-size", "--max-features",
                      "--matching", "--mapper", "--marker-size", "--video-every"],
     "mvs": _BASIC + ["--masks", "--mvs", "--max-size", "--n-sources", "--min-consistent", "--min-confidence",
                      "--cluster"],
     "fuse": _BASIC + ["--depth-dir", "--masks", "--formats", "--mesher", "--voxel-size", "--trunc-voxels",
-                      "--scene", "--object", "--target-faces", "--crop", "--cluster"],
+                      "--scene", "--target-faces", "--crop", "--cluster"],
 }
 
 
@@ -51,8 +51,7 @@ SHORT_HELP: dict[str, str] = {
     "--max-image-size": "SfM: longest image side for features, pixels (default: 1600)",
     "--max-size": "depth: working resolution, longest side in pixels (default: 1600; 0 = full)",
     "--voxel-size": "TSDF voxel size, scene units (default: from the depth maps' resolution)",
-    "--object": "object on a table or turntable: remove the support under it",
-    "--scene": "auto: detect an object capture; object: remove its support; open: keep the ground",
+    "--scene": "object: remove the table or turntable under it; open: keep the ground; auto (default): from the cameras",
     "--target-faces": "simplify the mesh to this many faces (default: 0 = keep)",
     "--cluster": "run the depth and fusion tasks on Dask: local:N or tcp://HOST:PORT",
     "--marker-size": "ArUco marker edge length, metres: scale the model to metres",
