@@ -107,6 +107,8 @@ def _main(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.ERROR if args.quiet else logging.DEBUG if args.verbose else logging.INFO,
                         format="%(message)s")
+    for name in ("PIL", "matplotlib", "numba", "asyncio", "fsspec"):  # their debug logs are not photorecon's
+        logging.getLogger(name).setLevel(max(logging.INFO, logging.getLogger().level))
     from .. import progress
 
     progress.set_enabled(not args.quiet)
