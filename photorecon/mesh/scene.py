@@ -41,18 +41,9 @@ def _views(cameras) -> list:
 def look_at_point(views) -> np.ndarray | None:
     """The point nearest (least squares) to every camera's optical axis; None with fewer than 3 views or when
     the axes are nearly parallel (the smallest eigenvalue of the normal matrix below 5% of the largest)."""
-    if len(views) < 3:
-        return None
-    A, b = np.zeros((3, 3)), np.zeros(3)
-    for v in views:
-        d = np.asarray(v.cam_from_world, float)[2, :3]  # the optical axis (camera z) in world coordinates
-        P = np.eye(3) - np.outer(d, d)
-        A += P
-        b += P @ v.center
-    w = np.linalg.eigvalsh(A)
-    if w[0] < 0.05 * w[-1]:
-        return None
-    return np.linalg.solve(A, b)
+    from .support import axes_point
+
+    return axes_point(views, min_views=3)
 
 
 def sees(views, points: np.ndarray, margin: float = 0.0) -> np.ndarray:

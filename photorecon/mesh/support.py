@@ -44,8 +44,14 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
 def _look_at_point(cameras) -> np.ndarray | None:
     """The point nearest (least squares) to every camera's optical axis: what a ring or dome of cameras looks
     at. None without ``View``s, or when the axes are nearly parallel (a forward-facing set)."""
-    views = [c for c in cameras if hasattr(c, "cam_from_world")]
-    if len(views) < 2:
+    return axes_point([c for c in cameras if hasattr(c, "cam_from_world")], min_views=2)
+
+
+def axes_point(views, min_views: int = 3) -> np.ndarray | None:
+    """The point nearest (least squares) to the optical axes of ``views``; None with fewer than ``min_views``
+    or when the axes are nearly parallel (the smallest eigenvalue of the normal matrix below 5% of the
+    largest)."""
+    if len(views) < min_views:
         return None
     A, b = np.zeros((3, 3)), np.zeros(3)
     for v in views:
