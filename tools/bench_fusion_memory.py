@@ -53,7 +53,9 @@ class Sampler:
             time.sleep(self.dt)
 
     def wrap(self, module, name: str, label: str | None = None):
-        fn = getattr(module, name)
+        fn = getattr(module, name, None)
+        if fn is None:  # not in this version of photorecon
+            return
 
         def wrapped(*a, **k):
             prev, self.step = self.step, label or name
@@ -125,6 +127,7 @@ def child(args) -> dict:
                           (fusion, "surface_report"), (mesh_mod, "clean"), (mesh_mod, "export"),
                           (preview_mod, "render_preview"), (report_mod, "decimate_for_viewer")):
             sampler.wrap(mod, name)
+        sampler.wrap(mesh_mod, "clean_open3d", "clean")
     d = StageConfigs()
     fus, cln = d.fusion, d.clean
     ff, cf = {f.name for f in fields(FusionConfig)}, {f.name for f in fields(CleanConfig)}
