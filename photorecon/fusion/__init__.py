@@ -23,7 +23,7 @@ from .frames import (_resize_to, _sample_depth_points, depth_view, load_frame, l
                      prepare_depth, scene_diagonal)
 from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
 from .legacy import legacy_article_fuse
-from .points import _area_samples, _point_cloud, observed_points, oriented_points, surface_report
+from .points import _area_samples, _point_cloud, observed_distance, observed_points, oriented_points, surface_report
 from .poisson import (_close, _fair_patch, _largest_component, _orient_patches, _patch_colors, _poisson, _supported,
                       poisson_fuse)
 from .tsdf import (_available_bytes, _band_block_keys, _chunk_size, _depth_max, _extract, _frame_blocks, _grid_bytes,
