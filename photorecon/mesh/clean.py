@@ -191,12 +191,12 @@ def triangle_components(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> t
         a, b = T[:, i].astype(np.int64), T[:, j].astype(np.int64)
         keys[k * F:(k + 1) * F] = np.minimum(a, b) * n + np.maximum(a, b)
     order = np.argsort(keys, kind="stable")
-    same = keys[order[1:]] == keys[order[:-1]]
+    keys = keys[order]
+    same = keys[1:] == keys[:-1]
     del keys
-    face = order % F
-    del order
+    face = np.remainder(order, F, out=order)
     u, v = face[:-1][same].astype(np.int32), face[1:][same].astype(np.int32)  # faces sharing an edge, chained
-    del face, same
+    del face, order, same
     graph = coo_matrix((np.ones(len(u), np.int8), (u, v)), shape=(F, F)).tocsr()
     del u, v
     _, labels = connected_components(graph, directed=False)
@@ -425,6 +425,7 @@ def _fill_holes_open3d(m, hole_size: float) -> trimesh.Trimesh:
     import open3d as o3d
 
     t = o3d.t.geometry.TriangleMesh.from_legacy(m)
-    # t lives on until the result is copied: the filled mesh may still point into its storage
+    # t lives on until the result is copied to a legacy mesh: the filled mesh may still point into its storage
     filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
+    del t
     return from_open3d(filled if len(filled.triangles) >= len(m.triangles) else m)
