@@ -589,6 +589,108 @@ def test_triangle_components_match_open3d():
     assert labels[0] == labels[1] != labels[2] and labels[3] == labels[4] == labels[5] != labels[6]
 
 
+def test_face_areas_centres_normals_in_blocks_equal_the_whole_mesh():
+    """Per-face quantities computed a few faces at a time are bit for bit those of the whole (F, 3, 3) corner
+    array, in float64 and float32."""
+    from photorecon.mesh import face_areas, face_centres, face_cross
+
+    rng = np.random.default_rng(3)
+    for dtype in (np.float64, np.float32):
+        V = rng.normal(size=(50, 3)).astype(dtype)
+        T = rng.integers(0, 50, size=(101, 3)).astype(np.int32)
+        tri = V[T]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        assert face_cross(V, T, block=7).dtype == dtype
+        assert np.array_equal(face_cross(V, T, block=7), cross)
+        assert np.array_equal(face_areas(V, T, block=7), 0.5 * np.linalg.norm(cross, axis=1))
+        assert np.array_equal(face_centres(V, T, block=7), tri.mean(1))
+    assert face_areas(V, T[:0]).shape == (0,)
+
+
+def test_from_open3d_copies_what_it_takes():
+    """The trimesh shares no storage with the Open3D mesh (which can then be freed): same vertices, faces and
+    colours 0..255, also when the colours are converted a few vertices at a time."""
+    import gc
+
+    import open3d as o3d
+
+    from photorecon.mesh import from_open3d
+
+    m = o3d.geometry.TriangleMesh.create_sphere(1.0, 10)
+    rgb = np.random.default_rng(0).random((len(m.vertices), 3)) * 1.2 - 0.1  # outside 0..1 too: clipped
+    m.vertex_colors = o3d.utility.Vector3dVector(rgb)
+    V, T = np.array(m.vertices), np.array(m.triangles)
+    out = from_open3d(m, block=5)
+    assert not np.shares_memory(out.vertices, np.asarray(m.vertices))
+    del m
+    gc.collect()
+    assert np.array_equal(out.vertices, V) and np.array_equal(out.faces, T)
+    assert np.array_equal(out.visual.vertex_colors[:, :3], (np.clip(rgb, 0, 1) * 255).astype(np.uint8))
+
+
+def test_clean_fills_holes_as_fill_holes_on_the_cleaned_mesh():
+    """The hole filling inside ``clean`` (from the Open3D mesh) gives the very mesh that ``fill_holes`` gives
+    on the cleaned, unfilled mesh: same vertices, faces and colours."""
+    from photorecon.mesh import fill_holes
+
+    s = trimesh.creation.icosphere(subdivisions=4)
+    keep = np.ones(len(s.faces), bool)
+    keep[[3, 200, 900]] = False  # three one-face pinholes
+    colors = np.random.default_rng(1).integers(0, 256, (len(s.vertices), 3), dtype=np.uint8)
+    holed = trimesh.Trimesh(s.vertices, s.faces[keep], vertex_colors=colors, process=False)
+    holed.metadata["voxel_size"] = 0.01
+    filled = clean(holed, CleanConfig())
+    expected = fill_holes(clean(holed, CleanConfig(fill_holes_voxels=0)), 15 * 0.01)
+    assert len(filled.faces) == len(holed.faces) + 3
+    assert np.array_equal(filled.vertices, expected.vertices) and np.array_equal(filled.faces, expected.faces)
+    assert np.array_equal(filled.visual.vertex_colors, expected.visual.vertex_colors)
+
+
+def test_observed_distance_matches_a_tree_of_all_observed_points(frames):
+    """One point per cell of spacing / 2, the first view's: ``observed_points`` holds the same points as
+    thinning all views at once would, and ``observed_distance`` (one view at a time) gives the same distances
+    as a KD-tree of all of them, inf beyond the bound."""
+    from scipy.spatial import cKDTree
+
+    from photorecon.cameras import backproject_depth
+    from photorecon.fusion import observed_distance, observed_points
+    from photorecon.fusion.grid import _cell_keys
+
+    spacing = 0.03
+    pts, views = [], []
+    for f in frames[:6]:
+        z = f.depth[f.depth > 0]
+        step = max(1, int(spacing / (float(np.median(z)) / f.view.intrinsics.fx)))
+        sub = np.zeros_like(f.depth)
+        sub[::step, ::step] = f.depth[::step, ::step]
+        pts.append(backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world))
+    allp = np.concatenate(pts)
+    _, first = np.unique(_cell_keys(allp, spacing / 2), return_index=True)  # each cell's first point, in view order
+    want = allp[first]
+    got = observed_points(frames[:6], spacing)
+    assert len(got) == len(want) < len(allp)
+    assert np.array_equal(got[np.lexsort(got.T)], want[np.lexsort(want.T)])
+    q = want[::7] + np.random.default_rng(2).normal(0, 0.05, (len(want[::7]), 3))
+    d = observed_distance(frames[:6], spacing, q, 0.04)
+    assert np.array_equal(d, cKDTree(want).query(q, k=1, distance_upper_bound=0.04)[0])
+    assert np.isinf(d).any() and np.isfinite(d).any()
+
+
+def test_fusion_stage_keeps_only_the_depth_of_its_frames(frames, tmp_path):
+    """``fuse_to_files`` replaces the entries of its frame list by depth-only frames once fused (the colour,
+    confidence and normal maps freed before the cleaning); frames the caller holds elsewhere are untouched."""
+    from photorecon.fusion import fuse_to_files
+    from photorecon.layout import Layout
+
+    mine = list(frames[:8])
+    assert all(f.color is not None for f in mine)
+    mesh, info = fuse_to_files(mine, FusionConfig(), CleanConfig(), Layout(tmp_path), ("ply",), [f.view for f in mine])
+    assert len(mine) == 8 and info["depth_maps_fused"] == 8 and len(mesh.faces) > 1000
+    assert all(g.color is None and g.confidence is None and g.normal is None for g in mine)
+    assert all(g.depth is f.depth and g.view is f.view for g, f in zip(mine, frames[:8]))
+    assert frames[0].color is not None
+
+
 def test_surface_report_counts_edges_and_samples_the_area():
     """A closed box is watertight with no boundary edge; with one face removed, 3 boundary edges; area samples
     lie on the surface and follow the faces' areas."""

@@ -11,7 +11,7 @@ resident memory sampled every 20 ms, the largest value per step (frames, grid, i
 cleaning, export, surface report, preview).
 
     python tools/bench_fusion_memory.py bench_real/herz --dataset ../shared/data/herz-jesu-p8 [--counts 10,20,40]
-        [--json out.json] [--profile] [--set NAME=VALUE ...]
+        [--json out.json] [--profile] [--keep-mesh DIR] [--set NAME=VALUE ...]
 
 RESULT is a folder with depth/ (``tools/bench_real.py --out DIR`` writes DIR/herz/depth) or a ``reconstruct``
 output (its own images, cameras and depth/); --dataset gives the photos and cameras when they are elsewhere.
@@ -53,7 +53,9 @@ class Sampler:
             time.sleep(self.dt)
 
     def wrap(self, module, name: str, label: str | None = None):
-        fn = getattr(module, name)
+        fn = getattr(module, name, None)
+        if fn is None:  # not in this version of photorecon
+            return
 
         def wrapped(*a, **k):
             prev, self.step = self.step, label or name
@@ -125,6 +127,7 @@ def child(args) -> dict:
                           (fusion, "surface_report"), (mesh_mod, "clean"), (mesh_mod, "export"),
                           (preview_mod, "render_preview"), (report_mod, "decimate_for_viewer")):
             sampler.wrap(mod, name)
+        sampler.wrap(mesh_mod, "clean_open3d", "clean")
     d = StageConfigs()
     fus, cln = d.fusion, d.clean
     ff, cf = {f.name for f in fields(FusionConfig)}, {f.name for f in fields(CleanConfig)}
@@ -151,6 +154,11 @@ def child(args) -> dict:
         with measure(stats, "preview"):
             preview_stage(mesh, ds, layout)
         r2 = resource.getrusage(resource.RUSAGE_SELF)
+        if args.keep_mesh:  # the fused mesh, to compare two versions' outputs
+            import shutil
+
+            Path(args.keep_mesh).mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(layout.mesh("ply"), Path(args.keep_mesh) / f"mesh_{args.child}.ply")
         depth = np.load(Path(args.result) / "depth" / f"{base_views[0].name}.npy", mmap_mode="r")
         mp = args.child * depth.shape[0] * depth.shape[1] / 1e6
         area = float(mesh.area)
@@ -174,6 +182,7 @@ def main() -> int:
     ap.add_argument("--counts", default="10,20,40", help="frame counts, comma-separated (default: 10,20,40)")
     ap.add_argument("--json", help="write the rows here")
     ap.add_argument("--profile", action="store_true", help="resident memory per step (sampled every 20 ms)")
+    ap.add_argument("--keep-mesh", metavar="DIR", help="copy each count's mesh.ply to DIR/mesh_N.ply")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="override a FusionConfig or CleanConfig setting (the pipeline's defaults otherwise)")
     ap.add_argument("--child", type=int, help=argparse.SUPPRESS)
@@ -184,7 +193,8 @@ def main() -> int:
     rows = []
     for n in [int(c) for c in args.counts.split(",")]:
         cmd = [sys.executable, __file__, args.result, "--child", str(n)] + (["--dataset", args.dataset] if args.dataset else [])
-        cmd += (["--profile"] if args.profile else []) + [a for s in args.set for a in ("--set", s)]
+        cmd += (["--profile"] if args.profile else []) + (["--keep-mesh", args.keep_mesh] if args.keep_mesh else [])
+        cmd += [a for s in args.set for a in ("--set", s)]
         p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode:
             print(p.stderr[-3000:], file=sys.stderr)

@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 
 from ..cameras import View
-from ..errors import BadArgumentError
+from ..errors import BadArgumentError, EmptyMeshError
 from ..resources import release_memory
 from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
                       tsdf_fuse_chunked)
@@ -23,7 +23,7 @@ from .frames import (_resize_to, _sample_depth_points, depth_view, load_frame, l
                      prepare_depth, scene_diagonal)
 from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
 from .legacy import legacy_article_fuse
-from .points import _area_samples, _point_cloud, observed_points, oriented_points, surface_report
+from .points import _area_samples, _point_cloud, observed_distance, observed_points, oriented_points, surface_report
 from .poisson import (_close, _fair_patch, _largest_component, _orient_patches, _patch_colors, _poisson, _supported,
                       poisson_fuse)
 from .tsdf import (_available_bytes, _band_block_keys, _chunk_size, _depth_max, _extract, _frame_blocks, _grid_bytes,
@@ -84,13 +84,22 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
                   work_dir=None) -> tuple[trimesh.Trimesh, dict]:
     """The fusion stage of ``reconstruct`` and ``fuse``: ``fuse`` -> ``clean`` (floaters judged against
     ``cameras``) -> ``layout.mesh(fmt)`` for each format. Returns the mesh and its facts (counts and
-    ``surface_report``: watertight, boundary edges, invented fraction), which are also logged."""
-    from ..mesh import clean, export
+    ``surface_report``: watertight, boundary edges, invented fraction), which are also logged.
+
+    Once fused, each entry of ``frames`` is replaced by the frame with its depth map only (the surface report
+    needs no more): the colour, confidence and normal maps are freed before the cleaning unless the caller
+    holds the frames elsewhere."""
+    from ..mesh import clean_open3d, export, to_open3d
 
     fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
-    release_memory()  # the grid's freed pages: the cleaning's peak would stack on them
-    mesh = clean(fused, clean_cfg, cameras=cameras)
-    del fused
+    frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
+    if not len(fused.faces):
+        raise EmptyMeshError("the mesh has no triangle")
+    m, metadata = to_open3d(fused), dict(fused.metadata)
+    del fused  # the cleaning works on the Open3D copy
+    release_memory()  # the grid's and the frames' freed pages: the cleaning's peak would stack on them
+    mesh = clean_open3d(m, metadata, clean_cfg, cameras=cameras)
+    del m
     release_memory()
     for fmt in formats:
         export(mesh, layout.mesh(fmt))

@@ -89,41 +89,64 @@ def _point_cloud(frames: list[DepthFrame], spacing: float, with_normals: bool = 
     return cloud
 
 
-def observed_points(frames: list[DepthFrame], spacing: float) -> np.ndarray:
-    """The depth maps' world points, every k-th pixel in both directions so that neighbours lie about
-    ``spacing`` apart on the surface each camera looks at: what the cameras observed. Views that see the same
-    surface add no points there: one point per cell of ``spacing / 2`` is kept (the first view's), so the
-    count follows the observed area, not the number of views."""
+def _observed_per_view(frames: list[DepthFrame], spacing: float):
+    """Per view, the points it adds to ``observed_points`` (those in cells no earlier view filled)."""
     cell = spacing / 2
-    keys, pts = np.zeros(0, np.int64), np.zeros((0, 3))
+    keys = np.zeros(0, np.int64)  # sorted: the cells filled so far
     for f in frames:
         z = f.depth[f.depth > 0]
         if not z.size:
             continue
         step = max(1, int(spacing / (float(np.median(z)) / f.view.intrinsics.fx)))
+        del z
         sub = np.zeros_like(f.depth)
         sub[::step, ::step] = f.depth[::step, ::step]
         p = backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world)
-        keys, first = np.unique(np.concatenate([keys, _cell_keys(p, cell)]), return_index=True)
-        pts = np.concatenate([pts, p])[first]
-    return pts
+        del sub
+        k, first = np.unique(_cell_keys(p, cell), return_index=True)  # each cell's first point in this view
+        j = np.minimum(np.searchsorted(keys, k), max(len(keys) - 1, 0))
+        new = keys[j] != k if len(keys) else np.ones(len(k), bool)
+        k, first = k[new], first[new]
+        if len(k):
+            yield p[first]
+            keys = np.concatenate([keys, k])
+            keys.sort(kind="stable")
+
+
+def observed_points(frames: list[DepthFrame], spacing: float) -> np.ndarray:
+    """The depth maps' world points, every k-th pixel in both directions so that neighbours lie about
+    ``spacing`` apart on the surface each camera looks at: what the cameras observed. Views that see the same
+    surface add no points there: one point per cell of ``spacing / 2`` is kept (the first view's), so the
+    count follows the observed area, not the number of views. Ordered by view, then by cell."""
+    parts = list(_observed_per_view(frames, spacing))
+    return np.concatenate(parts) if parts else np.zeros((0, 3))
+
+
+def observed_distance(frames: list[DepthFrame], spacing: float, points: np.ndarray, upper: float) -> np.ndarray:
+    """For each of ``points`` (N, 3), the distance to the nearest of ``observed_points(frames, spacing)``, inf
+    where none lies within ``upper``: the same numbers as a KD-tree of all the observed points, found one view's
+    points at a time (the observed points are never all in memory)."""
+    from scipy.spatial import cKDTree
+
+    dist = np.full(len(points), np.inf)
+    for p in _observed_per_view(frames, spacing):
+        d, _ = cKDTree(p).query(points, k=1, distance_upper_bound=upper)
+        np.minimum(dist, d, out=dist)
+    return dist
 
 
 def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: int = 50_000) -> dict:
     """Watertightness (trimesh ``is_watertight``, boundary edges) and the *invented* fraction of a mesh's area:
     area-uniform samples farther than ``invent_distance`` from every observed depth point. The distance is two
     cells of the mesher (Poisson octree cell, TSDF voxel), at least three pixel footprints."""
-    from scipy.spatial import cKDTree
-
     from ..mesh import edge_use_counts
 
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     footprint = pixel_footprint(frames)
     cell = float(mesh.metadata.get("poisson_cell") or mesh.metadata.get("voxel_size") or 0.0)
     tau = max(2 * cell, 3 * footprint)
-    obs = observed_points(frames, tau / 2)
     pts = _area_samples(np.asarray(mesh.vertices), np.asarray(mesh.faces), n_samples)
-    dist, _ = cKDTree(obs).query(pts, k=1, distance_upper_bound=tau)
+    dist = observed_distance(frames, tau / 2, pts, tau)
     counts = edge_use_counts(mesh.faces)
     return {"watertight": bool(len(counts) and (counts == 2).all()), "boundary_edges": int((counts == 1).sum()),
             "invented_fraction": float(np.mean(~np.isfinite(dist))), "invent_distance": tau}

@@ -11,14 +11,16 @@
 In-memory meshes are trimesh ``Trimesh`` with ``process=False``: geometry is never rewritten behind the
 caller's back.
 """
-from .clean import (CleanConfig, boundary_edges, clean, edge_use_counts, fill_holes, floater_mask, from_open3d,
+from .clean import (CleanConfig, boundary_edges, clean, clean_open3d, edge_use_counts, face_areas, face_centres,
+                    face_cross, fill_holes, floater_mask, from_open3d,
                     harmonic_fill, log, raycasting_scene, simplify, to_open3d, triangle_components, _linked,
                     _vertex_colors, _weighted_percentile)
 from .export import MESH_FORMATS, MESH_SUFFIXES, export, load_mesh, parse_formats
 from .support import (find_support, find_support_plane, ransac_plane, remove_support, _look_at_point,
                       _support_rims)
 
-__all__ = ["CleanConfig", "MESH_FORMATS", "MESH_SUFFIXES", "boundary_edges", "clean", "edge_use_counts", "export",
+__all__ = ["CleanConfig", "MESH_FORMATS", "MESH_SUFFIXES", "boundary_edges", "clean", "clean_open3d", "edge_use_counts",
+           "export", "face_areas", "face_centres", "face_cross",
            "fill_holes", "find_support", "find_support_plane", "floater_mask", "from_open3d", "harmonic_fill",
            "load_mesh", "parse_formats", "ransac_plane", "raycasting_scene", "remove_support", "simplify",
            "to_open3d", "triangle_components"]

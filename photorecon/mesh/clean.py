@@ -59,11 +59,17 @@ def raycasting_scene(mesh: trimesh.Trimesh):
     return scene
 
 
-def from_open3d(m) -> trimesh.Trimesh:
+def from_open3d(m, block: int = 1 << 20) -> trimesh.Trimesh:
+    """A trimesh copy of the Open3D mesh ``m`` (vertices, triangles, colours 0..255): it holds no reference to
+    ``m``'s storage, so ``m`` is freed once its last reference goes. Colours converted ``block`` vertices at a
+    time (no float copies of the whole colour array)."""
     colors = None
     if m.has_vertex_colors():
-        colors = (np.clip(np.asarray(m.vertex_colors), 0, 1) * 255).astype(np.uint8)
-    return trimesh.Trimesh(np.asarray(m.vertices), np.asarray(m.triangles), vertex_colors=colors, process=False)
+        vc = np.asarray(m.vertex_colors)
+        colors = np.empty(vc.shape, np.uint8)
+        for s in range(0, len(vc), block):
+            colors[s:s + block] = np.clip(vc[s:s + block], 0, 1) * 255
+    return trimesh.Trimesh(np.array(m.vertices), np.asarray(m.triangles), vertex_colors=colors, process=False)
 
 
 def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
@@ -77,14 +83,22 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     ``cameras``: Views or camera centres (N, 3), the scale of "far"); then optionally crop, fill holes (by
     default, on a TSDF mesh whose ``metadata["voxel_size"]`` is known, those up to ``fill_holes_voxels``
     voxels in radius) and simplify. Scalar metadata (mesher, voxel size, ...) is kept. Raises
-    ``EmptyMeshError`` if nothing is left."""
+    ``EmptyMeshError`` if nothing is left. ``clean_open3d`` does the same on an Open3D copy of the mesh."""
+    if not len(mesh.faces):
+        raise EmptyMeshError("the mesh has no triangle")
+    return clean_open3d(to_open3d(mesh), dict(mesh.metadata), cfg, cameras)
+
+
+def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None) -> trimesh.Trimesh:
+    """``clean`` on the Open3D mesh ``m`` (``to_open3d``), changed in place, with the fused mesh's ``metadata``
+    (mesher, voxel size): the caller can free its own mesh before the cleaning runs (a mesh of millions of faces
+    is then not held twice). Do not use ``m`` afterwards."""
     cfg = cfg or CleanConfig()
     min_component = cfg.min_component
     if min_component is None:
-        min_component = 0.0 if mesh.metadata.get("mesher") == "grid" else 0.05
-    if not len(mesh.faces):
+        min_component = 0.0 if metadata.get("mesher") == "grid" else 0.05
+    if not len(m.triangles):
         raise EmptyMeshError("the mesh has no triangle")
-    m = to_open3d(mesh)
     m.remove_duplicated_vertices()
     m.remove_duplicated_triangles()
     m.remove_degenerate_triangles()
@@ -105,23 +119,25 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
     if mode != "open" and len(m.triangles):
         from .scene import detect_and_remove
 
-        scene = detect_and_remove(m, cameras, mesh.metadata.get("voxel_size"), cfg.object_cut, mode)
+        scene = detect_and_remove(m, cameras, metadata.get("voxel_size"), cfg.object_cut, mode)
     support = scene["support_removed"]
     if len(m.triangles) and min_component > 0:
         drop = floater_mask(m, min_component, cfg.floater_distance, min(cfg.min_detail, min_component), cameras)
         if drop.any():
             m.remove_triangles_by_mask(drop)
             m.remove_unreferenced_vertices()
+        del drop
     if not len(m.triangles):
         raise EmptyMeshError("cleaning left no triangle (everything cropped or in small components)")
-    out = from_open3d(m)
-    del m  # the Open3D copy: the hole filling makes its own
     hole = cfg.fill_holes
-    if not hole > 0 and cfg.fill_holes_voxels > 0 and mesh.metadata.get("voxel_size"):
-        hole = cfg.fill_holes_voxels * float(mesh.metadata["voxel_size"])  # the pinholes of a TSDF surface
+    if not hole > 0 and cfg.fill_holes_voxels > 0 and metadata.get("voxel_size"):
+        hole = cfg.fill_holes_voxels * float(metadata["voxel_size"])  # the pinholes of a TSDF surface
     if hole > 0:
-        out = fill_holes(out, hole)
-    out.metadata.update({k: v for k, v in mesh.metadata.items() if isinstance(v, (bool, int, float, str))})
+        out = _fill_holes_open3d(m, hole)
+    else:
+        out = from_open3d(m)
+    del m  # the Open3D copy
+    out.metadata.update({k: v for k, v in metadata.items() if isinstance(v, (bool, int, float, str))})
     if support is not None:
         out.metadata.update(support)
     out.metadata["scene"] = scene
@@ -129,6 +145,33 @@ def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -
         out = from_open3d(to_open3d(out).simplify_vertex_clustering(cfg.cluster_voxel))
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
         out = simplify(out, cfg.target_faces)
+    return out
+
+
+def face_cross(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarray:
+    """Per triangle of (V, T): the cross product of its edges (v1 - v0) x (v2 - v0) (F, 3), twice its area times
+    its unit normal; computed ``block`` triangles at a time (no (F, 3, 3) corner array)."""
+    out = np.empty((len(T), 3), np.result_type(V.dtype, np.float32))
+    for s in range(0, len(T), block):
+        t = V[T[s:s + block]]
+        out[s:s + block] = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    return out
+
+
+def face_areas(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarray:
+    """Per triangle of (V, T): its area (F,), ``block`` triangles at a time."""
+    out = np.empty(len(T), np.result_type(V.dtype, np.float32))
+    for s in range(0, len(T), block):
+        t = V[T[s:s + block]]
+        out[s:s + block] = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    return out
+
+
+def face_centres(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarray:
+    """Per triangle of (V, T): the mean of its corners (F, 3), ``block`` triangles at a time."""
+    out = np.empty((len(T), 3), np.result_type(V.dtype, np.float32))
+    for s in range(0, len(T), block):
+        out[s:s + block] = V[T[s:s + block]].mean(1)
     return out
 
 
@@ -148,21 +191,17 @@ def triangle_components(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> t
         a, b = T[:, i].astype(np.int64), T[:, j].astype(np.int64)
         keys[k * F:(k + 1) * F] = np.minimum(a, b) * n + np.maximum(a, b)
     order = np.argsort(keys, kind="stable")
-    same = keys[order[1:]] == keys[order[:-1]]
+    keys = keys[order]
+    same = keys[1:] == keys[:-1]
     del keys
-    face = order % F
-    del order
+    face = np.remainder(order, F, out=order)
     u, v = face[:-1][same].astype(np.int32), face[1:][same].astype(np.int32)  # faces sharing an edge, chained
-    del face, same
+    del face, order, same
     graph = coo_matrix((np.ones(len(u), np.int8), (u, v)), shape=(F, F)).tocsr()
     del u, v
     _, labels = connected_components(graph, directed=False)
     del graph
-    area = np.empty(F)
-    for s in range(0, F, block):
-        t = V[T[s:s + block]]
-        area[s:s + block] = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-    return labels.astype(np.int64), np.bincount(labels, weights=area)
+    return labels.astype(np.int64), np.bincount(labels, weights=face_areas(V, T, block))
 
 
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
@@ -188,18 +227,21 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
         V = np.asarray(m.vertices)
         T = np.asarray(m.triangles)
         main_tris = main[labels]
-        main_v = np.unique(T[main_tris])
+        main_T = T[main_tris]
+        main_v = np.unique(main_T)
         # the scene's size: area-weighted triangle centres of the main surface, robust to its own outliers
-        tri = V[T[main_tris]]
-        centres = tri.mean(1)
-        w = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        centres = face_centres(V, main_T)
+        w = np.linalg.norm(face_cross(V, main_T), axis=1)
+        del main_T
         lo, hi = _weighted_percentile(centres, w, 1), _weighted_percentile(centres, w, 99)
         size = float(np.linalg.norm(hi - lo))
         if cameras is not None and len(cameras):
             cams = np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
             mid = _weighted_percentile(centres, w, 50)
             size = min(size, float(np.median(np.linalg.norm(cams - mid, axis=1))))
+        del centres, w
         tree = cKDTree(V[main_v])
+        del main_v
         rng = np.random.default_rng(0)
         order = np.argsort(labels, kind="stable")
         bounds = np.searchsorted(labels[order], np.arange(n + 1))
@@ -212,7 +254,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
                 drop[c] = True
         far = small[drop[small]]
         if len(far):  # a fragment near a kept fragment is kept too: a speckled surface is one piece
-            drop[far[_linked(V[T].mean(1), labels, ~drop, far, floater_distance * size)]] = False
+            drop[far[_linked(face_centres(V, T), labels, ~drop, far, floater_distance * size)]] = False
     n_drop = int(drop.sum())
     if n_drop:
         log.debug("cleaning: %d of %d components dropped (debris or floaters)", n_drop, n)
@@ -375,3 +417,15 @@ def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:
     filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
     out = from_open3d(filled)
     return out if len(out.faces) >= len(mesh.faces) else mesh
+
+
+def _fill_holes_open3d(m, hole_size: float) -> trimesh.Trimesh:
+    """``fill_holes(from_open3d(m), hole_size)`` without the trimesh copy in between; ``m`` (an Open3D mesh
+    from ``to_open3d``, colours k / 255) is not changed."""
+    import open3d as o3d
+
+    t = o3d.t.geometry.TriangleMesh.from_legacy(m)
+    # t lives on until the result is copied to a legacy mesh: the filled mesh may still point into its storage
+    filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
+    del t
+    return from_open3d(filled if len(filled.triangles) >= len(m.triangles) else m)

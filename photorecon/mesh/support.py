@@ -137,20 +137,22 @@ def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_sam
     its centre lies below the cut; or None when there is no such plane. Changes nothing."""
     if cameras is None or not len(cameras):
         raise BadArgumentError("--object needs the cameras (to tell which side of the table they are on)")
+    from .clean import face_areas, face_centres
+
     V = np.asarray(m.vertices)
     T = np.asarray(m.triangles)
     if not len(T):
         return None
-    tri = V[T]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = face_areas(V, T)
     if not area.sum() > 0:
         return None
     rng = np.random.default_rng(seed)
     pick = rng.choice(len(T), n_samples, p=area / area.sum())
+    del area
     r = rng.random((n_samples, 2))
     flip = r.sum(1) > 1
     r[flip] = 1 - r[flip]
-    t = tri[pick]
+    t = V[T[pick]]
     pts = t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
     nrm = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
@@ -166,7 +168,7 @@ def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_sam
         under = (h_pts < 0) & (h_pts > -10 * unit) & (np.abs(nrm @ n) > np.cos(np.radians(30.0)))
         spread = float(np.percentile(-h_pts[under], 99)) if under.sum() >= 100 else 0.0
         cut = max(2 * unit, 1.25 * spread)
-    h = tri.mean(1) @ n - c
+    h = face_centres(V, T) @ n - c
     drop = h < cut
     target = _look_at_point(cameras)
     if target is None:
@@ -183,10 +185,11 @@ def _support_rims(m, n: np.ndarray, h: np.ndarray, below: np.ndarray, max_height
     underside do not face up, so the growth stops at its foot."""
     import open3d as o3d
 
+    from .clean import face_cross
+
     T = np.asarray(m.triangles)
     V = np.asarray(m.vertices)
-    tri = V[T]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn = face_cross(V, T)
     cos = (fn @ n) / np.maximum(np.linalg.norm(fn, axis=1), 1e-300)
     flat_below = below & (np.abs(cos) > np.cos(np.radians(max_tilt_deg)))
     if not flat_below.any():
@@ -220,9 +223,9 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
                      "side and the object on theirs); nothing removed")
         return None
     n, c, cut, drop = found
-    V = np.asarray(m.vertices)
-    tri = V[np.asarray(m.triangles)]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    from .clean import face_areas
+
+    area = face_areas(np.asarray(m.vertices), np.asarray(m.triangles))
     removed = float(area[drop].sum())
     total = float(area.sum())
     m.remove_triangles_by_mask(drop)
