@@ -63,7 +63,7 @@ class SfMConfig:
     max_image_size: int = field(default=1600, metadata={"help": "feature extraction works on images downscaled to this longest side, pixels", "range": (64, 65536)})
     max_features: int = field(default=8192, metadata={"help": "most SIFT features per image", "range": (16, 1_000_000)})
     small_image_size: int = field(default=500, metadata={"help": "when images are left out: photos whose long side is below this many pixels get SIFT again on 2x upsampled copies, matched guided (0 = off)", "range": (0, 65536)})
-    low_contrast_peak: float = field(default=0.002, metadata={"help": "when images are left out: SIFT again with this peak (contrast) threshold, for grey or low-contrast photos (COLMAP's default 0.0067; 0 = off)", "range": (0, 1)})
+    low_contrast_peak: float = field(default=0.002, metadata={"help": "when fewer than 3/4 of the images register: SIFT again with this peak (contrast) threshold, for grey or low-contrast photos (COLMAP's default 0.0067; 0 = off)", "range": (0, 1)})
     affine_sift: bool = field(default=True, metadata={"help": "estimate affine feature shapes: longer tracks across oblique views"})
     dsp_sift: bool = field(default=False, metadata={"help": "domain-size pooling SIFT descriptors (slower extraction, sometimes more accurate)"})
     matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair, file-name neighbours (videos), or nearest by GPS; auto: exhaustive up to --exhaustive-max images"})
@@ -295,6 +295,10 @@ def _match_keyframes(database: Path, every: int, mopt) -> int:
         Path(f.name).unlink(missing_ok=True)
     return len(pairs)
 
+
+# The second SIFT pass with a lower contrast threshold runs when fewer than this fraction of the images register
+# (a few unrelated photos among many do not cost a second extraction and matching).
+LOW_CONTRAST_RETRY_BELOW = 0.75
 
 # Incremental mapping tried again with these thresholds, one set after the other, while a model leaves images
 # out: COLMAP's defaults ignore two-view tracks and want 100 inliers to start and 30 to register, too many for
@@ -557,7 +561,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     # grey or low-contrast photos that leave images out: SIFT again with a lower contrast threshold (a ring of
     # 12 grey 1280x1024 photos of a small object: 1.7k -> 6.9k features per image, 25-90 -> 100-200 inliers
     # between neighbours)
-    if cfg.low_contrast_peak and len(reg_names) < len(names):
+    if cfg.low_contrast_peak and len(reg_names) < LOW_CONTRAST_RETRY_BELOW * len(names):
         log.info("%d of %d images registered; SIFT again with a lower contrast threshold (%g)",
                  len(reg_names), len(names), cfg.low_contrast_peak)
         low = [dict(c, sift_peak=cfg.low_contrast_peak) for c in cameras]
