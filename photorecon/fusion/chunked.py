@@ -14,7 +14,8 @@ from ..cameras import View
 from ..errors import NoDepthError
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
 from .frames import load_frame
-from .tsdf import _band_block_keys, _depth_max, _extract, _integrate_frame, _new_grid, stitch_pieces, tsdf_voxel_size
+from .tsdf import (_band_block_keys, _depth_max, _extract, _integrate_frame, _new_grid, chunk_core, stitch_pieces,
+                   tsdf_voxel_size)
 
 log = logging.getLogger("photorecon")
 
@@ -113,12 +114,7 @@ def _chunk_piece(ctx: _ChunkContext, index: tuple[int, int, int], est_blocks: in
     n_blocks = int(vbg.hashmap().size())
     del vbg
     if len(F):
-        cen = V[F].mean(axis=1)
-        F = F[np.all((cen >= lo * block) & (cen < hi * block), axis=1)]
-        used_v = np.unique(F)
-        remap = np.full(len(V), -1, np.int64)
-        remap[used_v] = np.arange(len(used_v))
-        V, F, C = V[used_v], remap[F], (C[used_v] if C is not None else None)
+        V, F, C = chunk_core(V, F, C, lo * block, hi * block)
     with atomic_path(path) as tmp:
         np.savez(tmp, vertices=V.astype(np.float32), faces=F.astype(np.int32),
                  colors=C if C is not None else np.zeros((0, 3), np.uint8))

@@ -391,6 +391,17 @@ def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_
     return int(len(coords))
 
 
+def chunk_core(V: np.ndarray, F: np.ndarray, C: np.ndarray | None, lo: np.ndarray, hi: np.ndarray):
+    """A chunk's mesh trimmed to its core: the triangles whose centroid lies in [lo, hi) (scene units), and
+    only the vertices they use (colours ``C`` with them). Chunks that share a boundary keep each triangle once."""
+    cen = V[F].mean(axis=1)
+    F = F[np.all((cen >= lo) & (cen < hi), axis=1)]
+    used = np.unique(F)
+    remap = np.full(len(V), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return V[used], remap[F], (C[used] if C is not None else None)
+
+
 def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Marching cubes on the grid: (vertices (V, 3) float64, faces (F, 3) int64, colours (V, 3) uint8 or None)."""
     mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
@@ -464,13 +475,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         del vbg
         release_memory(collect=False)  # the grid is freed by reference counting
         if lo is not None and len(F):
-            block = voxel * _BLOCK_RES
-            cen = V[F].mean(axis=1)
-            F = F[np.all((cen >= lo * block) & (cen < hi * block), axis=1)]
-            used = np.unique(F)
-            remap = np.full(len(V), -1, np.int64)
-            remap[used] = np.arange(len(used))
-            V, F, C = V[used], remap[F], (C[used] if C is not None else None)
+            V, F, C = chunk_core(V, F, C, lo * voxel * _BLOCK_RES, hi * voxel * _BLOCK_RES)
         pieces.append((V.astype(np.float32), F.astype(np.int32), C))
     if sum(len(p[1]) for p in pieces) == 0:
         raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "

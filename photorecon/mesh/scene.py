@@ -135,6 +135,13 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
     from the Open3D mesh ``m`` in place (``mesh.remove_support``). Returns report.json's ``scene`` entry:
     ``mode``, ``detected`` ("object" or "open"), ``reason``, the tests' numbers, and ``support_removed``
     (faces, area, plane, cut) or None; logs one line."""
+    info = _decide(m, cameras, voxel, cut, mode)
+    _log(info)
+    return info
+
+
+def _decide(m, cameras, voxel: float | None, cut: float, mode: str) -> dict:
+    """``detect_and_remove`` without its log line."""
     from .support import find_support, remove_support
 
     info: dict = {"mode": mode}
@@ -144,20 +151,17 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
         if support is None:
             info["reason"] += ": no support plane found (no large flat part of the surface with every camera on one " \
                               "side and the object on theirs)"
-        _log(info)
         return info
     rig = camera_rig(cameras)
     info.update(cameras=rig["cameras"], cameras_seeing_look_at=rig["seeing"])
     if not rig["ok"]:
         info.update(detected="open", reason=rig["reason"], support_removed=None)
-        _log(info)
         return info
     views = _views(cameras)
     p = rig["look_at"]
     found = find_support(m, views, voxel, cut)
     if found is None:
         info.update(detected="open", reason="no support plane under the point the cameras look at", support_removed=None)
-        _log(info)
         return info
     n, c, cut_h, drop = found
     span = azimuth_span(np.array([v.center for v in views]), p, n)
@@ -166,7 +170,6 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
         info.update(detected="open", support_removed=None,
                     reason=f"the cameras see the point they look at from {span:.0f} degrees of azimuth, less than "
                            f"{MIN_AZIMUTH_DEG:.0f}: one side of a scene, not around an object")
-        _log(info)
         return info
     framed = framed_fraction(m, ~drop, views, p)
     info["framed"] = round(framed, 3)
@@ -174,13 +177,11 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
         info.update(detected="open", support_removed=None,
                     reason=f"the surface the cameras look at runs past the edges of their images ({100 * framed:.0f}% "
                            f"of it inside every image, less than {100 * MIN_FRAMED:.0f}%): not an object they frame")
-        _log(info)
         return info
     support = remove_support(m, views, voxel, cut, found=found, quiet=True)
     info.update(detected="object", support_removed=support,
                 reason=f"{rig['seeing']} of {rig['cameras']} cameras look at one point from {span:.0f} degrees around "
                        f"it, a support plane under it, the object inside their images ({100 * framed:.0f}% of it)")
-    _log(info)
     return info
 
 

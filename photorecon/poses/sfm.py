@@ -535,48 +535,41 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         rec = pycolmap.Reconstruction(str(model_dir))
         return sorted(rec.images[i].name for i in rec.reg_image_ids())
 
-    # small photos that leave images out: SIFT again on 2x upsampled copies, with guided matching
-    small = [c for c in camera_groups(images, cfg, upscale_small=True) if c["sift_upscale"] > 1]
-    model_dir = None
-    try:
-        model_dir, ext, matching, with_gps = sift_pass(cameras)
-        reg_names = registered(model_dir)
-    except SfMError:
-        if not small and not cfg.low_contrast_peak:
-            raise
-        reg_names = []
-    if small and len(reg_names) < len(names):
+    # A pass that leaves images out is followed by SIFT again on the small photos upsampled 2x (guided
+    # matching), then, while fewer than LOW_CONTRAST_RETRY_BELOW register, with a lower contrast threshold (a
+    # ring of 12 grey 1280x1024 photos of a small object: 1.7k -> 6.9k features per image, 25-90 -> 100-200
+    # inliers between neighbours). The pass that registers the most images is kept.
+    best: tuple | None = None  # (model_dir, extraction record, matching, photos with GPS, cameras, registered)
+    error: SfMError | None = None
+
+    def attempt(cams: list[dict], suffix: str = "") -> None:
+        nonlocal best, error
+        try:
+            result = sift_pass(cams, suffix)
+        except SfMError as exc:
+            error = exc
+            return
+        reg = registered(result[0])
+        if best is None or len(reg) > len(best[5]):
+            best = (*result, cams, reg)
+
+    def n_registered() -> int:
+        return len(best[5]) if best else 0
+
+    attempt(cameras)
+    up = camera_groups(images, cfg, upscale_small=True)
+    if any(c["sift_upscale"] > 1 for c in up) and n_registered() < len(names):
         log.info("%d of %d images registered; SIFT again on the photos under %d pixels upsampled 2x",
-                 len(reg_names), len(names), cfg.small_image_size)
-        up = camera_groups(images, cfg, upscale_small=True)
-        try:
-            up_result = sift_pass(up, "_upsampled")
-        except SfMError:
-            if not reg_names and not cfg.low_contrast_peak:
-                raise
-        else:
-            if len(registered(up_result[0])) > len(reg_names):
-                model_dir, ext, matching, with_gps = up_result
-                cameras, reg_names = up, registered(up_result[0])
-    # grey or low-contrast photos that leave images out: SIFT again with a lower contrast threshold (a ring of
-    # 12 grey 1280x1024 photos of a small object: 1.7k -> 6.9k features per image, 25-90 -> 100-200 inliers
-    # between neighbours)
-    if cfg.low_contrast_peak and len(reg_names) < LOW_CONTRAST_RETRY_BELOW * len(names):
+                 n_registered(), len(names), cfg.small_image_size)
+        attempt(up, "_upsampled")
+    if cfg.low_contrast_peak and n_registered() < LOW_CONTRAST_RETRY_BELOW * len(names):
         log.info("%d of %d images registered; SIFT again with a lower contrast threshold (%g)",
-                 len(reg_names), len(names), cfg.low_contrast_peak)
-        low = [dict(c, sift_peak=cfg.low_contrast_peak) for c in cameras]
-        try:
-            low_result = sift_pass(low, "_lowcontrast")
-        except SfMError:
-            if model_dir is None:
-                raise
-        else:
-            if len(registered(low_result[0])) > len(reg_names):
-                model_dir, ext, matching, with_gps = low_result
-                cameras, reg_names = low, registered(low_result[0])
-    if model_dir is None:
-        raise SfMError(f"0 of {len(names)} images registered: no two images could be matched into a model "
-                       "(do the photos overlap? are they all identical?)")
+                 n_registered(), len(names), cfg.low_contrast_peak)
+        attempt([dict(c, sift_peak=cfg.low_contrast_peak) for c in (best[4] if best else cameras)], "_lowcontrast")
+    if best is None:
+        raise error or SfMError(f"0 of {len(names)} images registered: no two images could be matched into a "
+                                "model (do the photos overlap? are they all identical?)")
+    model_dir, ext, matching, with_gps, cameras, reg_names = best
     unreg = [n for n in names if n not in set(reg_names)]
     if len(reg_names) < max(2, cfg.min_registered * len(names)):
         raise SfMError(f"{len(reg_names)} of {len(names)} images registered; not registered: "
