@@ -379,7 +379,7 @@ def _run_convert(args):
         with output_folder(args.dst, args.overwrite, inputs=(args.src,), command="convert", resumable=False):
             dst = write()
     else:
-        check_file_output(args.dst, args.overwrite, (args.src,), "DST")
+        check_file_output(args.dst, args.overwrite, (args.src,), "DST", may_hold=(args.src,))  # a new file in SRC
         dst = write()
     print(f"convert: {args.src} -> {dst}")
     return 0

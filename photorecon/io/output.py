@@ -149,6 +149,7 @@ def check_output(out: str | Path, overwrite: bool = False, inputs: tuple = (),
     check_apart(out, inputs, may_hold)
     if out.exists() and not out.is_dir():
         raise OutputError(f"output {out} exists and is not a folder; choose a folder")
+    _check_not_busy(out)  # a folder another run is writing: said first, whatever it holds
     if not out.is_dir() or _owns(out, command):
         if not out.is_dir():
             _check_not_part(out, command)
@@ -189,9 +190,11 @@ def _check_not_part(out: Path, command: str | None) -> None:
                           "never half-replaced: choose a folder outside it (-o), or a new folder in it")
 
 
-def check_file_output(path: str | Path | None, overwrite: bool = False, inputs: tuple = (), flag: str = "") -> None:
-    """Check an output that is one file: ``OutputError`` when it is an input or lies inside an input folder,
-    is a folder, is part of a photorecon result (``part_of_result``), or exists and not ``overwrite``."""
+def check_file_output(path: str | Path | None, overwrite: bool = False, inputs: tuple = (), flag: str = "",
+                      may_hold: tuple = ()) -> None:
+    """Check an output that is one file: ``OutputError`` when it is an input or lies inside an input folder
+    (a new file in the folders ``may_hold`` excepted), is a folder, is part of a photorecon result
+    (``part_of_result``), or exists and not ``overwrite``."""
     if path is None or str(path) in ("", "-"):
         return
     path = Path(path)
@@ -199,7 +202,10 @@ def check_file_output(path: str | Path | None, overwrite: bool = False, inputs: 
     for inp in inputs:
         if inp is not None and str(inp) != "" and _resolve(inp) == _resolve(path):
             raise OutputError(f"{name}: would replace an input ({inp}); choose another file")
-    check_apart(path, inputs)
+    held = [p for p in may_hold if p is not None and _resolve(path).is_relative_to(_resolve(p))]
+    if held and (path.exists() or path.is_symlink()):
+        raise OutputError(f"{name}: would replace a file in the input folder {held[0]}; choose another file")
+    check_apart(path, inputs, may_hold)
     if path.is_dir():
         raise OutputError(f"{name} is a folder; give a file name")
     part = _part(path, None)
@@ -347,6 +353,31 @@ def _alive(info: dict) -> bool:
 def _in_use(folder: Path, info: dict, path: Path) -> OutputError:
     return OutputError(f"output folder {folder} is in use by another photorecon run ({_describe(info)}); wait for "
                        f"it to finish or choose another output folder (if no such run is going on, remove {path})")
+
+
+def _check_not_busy(folder: Path) -> None:
+    """``OutputError`` naming the run when another live run holds ``folder``'s lock; writes nothing."""
+    path = folder / LOCK
+    if str(_resolve(path)) in _HELD:
+        return
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        info = _read_info(fd)
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                return  # nobody holds it: a stale lock, taken over later
+            except BlockingIOError:
+                raise _in_use(folder, info, path) from None
+            except OSError:
+                pass
+        if _alive(info):
+            raise _in_use(folder, info, path)
+    finally:
+        os.close(fd)
 
 
 def _acquire(folder: Path, path: Path, warnings: list | None = None) -> int:
