@@ -30,15 +30,13 @@ class DemoConfig:
     height: int = field(default=384, metadata={"help": "image height, pixels", "range": (64, 8192)})
 
 
-# what the demos write in their folder (--overwrite never replaces a file of these names photorecon did not write)
-DEMO_NAMES = ("scene", "reconstruction", "demo.json", "tsdf.ply", "watertight.ply", "side_by_side.png")
 
 
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
     from .io.output import output_folder
 
     cfg = cfg or DemoConfig()
-    with output_folder(out, overwrite, writes=DEMO_NAMES) as out:
+    with output_folder(out, overwrite, command="demo") as out:
         return _run_demo(out, cfg)
 
 
@@ -99,7 +97,7 @@ def run_bunny_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bo
     from .io.output import output_folder
 
     cfg = cfg or DemoConfig(scene="bunny")
-    with output_folder(out, overwrite, writes=DEMO_NAMES) as out:
+    with output_folder(out, overwrite, command="demo") as out:
         return _run_bunny_demo(out, cfg)
 
 
