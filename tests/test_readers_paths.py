@@ -236,7 +236,8 @@ def test_a_name_inside_the_folder_through_dotdot_or_a_link_is_read(tmp_path):
 
 
 # --- names -----------------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", [" leading space.png", "double  space.png", "trailing space .png", "tab\tname.png"])
+@pytest.mark.parametrize("name", [" leading space.png", "double  space.png", "trailing space .png", "tab\tname.png",
+                                  "~tilde.png", "..dots.png"])
 def test_colmap_text_names_are_the_rest_of_the_line(tmp_path, name):
     views = _views()
     views[0] = dataclasses.replace(views[0], name=Path(name).stem, image_file=name)
@@ -281,12 +282,18 @@ def test_two_photos_that_would_be_one_view_are_refused_naming_both(blob_small, t
     extra = dataclasses.replace(m.views[1], name="view_000", image_file="view_000.jpg")
     write_colmap_text(SparseModel(m.views + [extra]), tmp_path / "model")
     before = tree_hash(tmp_path)
-    for argv in (["sfm", photos], ["reconstruct", photos, "--poses", tmp_path / "model"]):
+    said = []
+    for argv, where in ((["sfm", photos], photos), (["reconstruct", photos, "--poses", tmp_path / "model"],
+                                                     tmp_path / "model")):
         assert main(["-q", *map(str, argv), "-o", str(tmp_path / "out")]) == 3
         line = _last_line(capsys.readouterr().err)
-        assert "'view_000.jpg' and 'view_000.png' would both be view 'view_000'" in line, line
-        assert "rename or remove one" in line and "_" not in line.split(":")[0].replace("photorecon", ""), line
+        head = f"photorecon {argv[0]}: error: {where}: "
+        assert line.startswith(head), line  # the folder or camera file, then what is wrong: no function's name
+        said.append(line[len(head):])
         assert tree_hash(tmp_path) == before and not (tmp_path / "out").exists()
+    assert said[0] == said[1]  # both paths say the same thing
+    assert said[0].startswith("'view_000.jpg' and 'view_000.png' would both be view 'view_000'") and \
+        said[0].endswith("rename or remove one of them"), said[0]
 
 
 def test_a_name_too_long_for_the_files_named_after_it_is_named_as_the_cause(blob_small, tmp_path, capsys):

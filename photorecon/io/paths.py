@@ -36,7 +36,7 @@ def inside(root: str | Path | None, name: str | os.PathLike, what: str) -> Path:
     if not text or "\0" in text:
         raise InputDataError(f"{what}: file name {text!r} is empty or holds a NUL character; expected a file "
                              f"name relative to {where}")
-    if Path(text).is_absolute() or text.startswith("~"):
+    if Path(text).is_absolute():
         raise InputDataError(f"{what}: absolute path {text!r} refused; files are named relative to {where} and "
                              "must lie inside it")
     if os.path.normpath(text).split(os.sep)[0] == "..":

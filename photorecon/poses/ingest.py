@@ -18,8 +18,7 @@ import cv2
 import numpy as np
 
 from ..cameras import Intrinsics
-from ..errors import BadArgumentError, InputDataError, NoImagesError
-from ..errors import SfMError
+from ..errors import BadArgumentError, InputDataError, NoImagesError, SfMError
 from ..io.atomic import atomic_path
 from ..io.images import image_write_failed
 from ..io.paths import IMAGE_SUFFIXES, check_distinct_views, check_name_length, inside
