@@ -247,7 +247,7 @@ def test_colmap_text_names_are_the_rest_of_the_line(tmp_path, name):
     assert [v.image_file for v in got[1:]] == ["v1.png", "v2.png"]
 
 
-def test_photos_named_with_spaces_reconstruct_from_given_cameras(blob_small, tmp_path):
+def test_photos_named_with_spaces_reconstruct_from_given_cameras(blob_small, tmp_path, capsys):
     """Photos named " leading space.png" and "double  space.png": read, undistorted and fused like any other."""
     images, depth, model = tmp_path / "images", tmp_path / "depth", tmp_path / "model"
     shutil.copytree(blob_small / "images", images)
@@ -270,6 +270,12 @@ def test_photos_named_with_spaces_reconstruct_from_given_cameras(blob_small, tmp
     got = {v.image_file for v in read_model(out).views}
     assert {" leading space.png", "double  space.png"} <= got
     assert (out / "images" / " leading space.png").is_file()
+    # a message names such a file as it is, both spaces kept
+    (images / "double  space.png").rename(tmp_path / "elsewhere.png")
+    capsys.readouterr()
+    assert main(["-q", "reconstruct", str(images), "--poses", str(model), "--depth", str(depth), "-o",
+                 str(tmp_path / "out2")]) == 3
+    assert "image double  space.png not found" in _last_line(capsys.readouterr().err)
 
 
 def test_two_photos_that_would_be_one_view_are_refused_naming_both(blob_small, tmp_path, capsys):
