@@ -179,6 +179,22 @@ def _dataset_colmap_scene(tmp, attack):
     return ["mvs", ds]
 
 
+def _dataset_files_scene(tmp, attack, folder):
+    """A dataset's own depth/NAME.npy or masks/NAME.png, a link to a file elsewhere."""
+    ds = tmp / "in" / "DS"
+    views = _views()
+    (ds / "depth").mkdir(parents=True)
+    for i, v in enumerate(views):
+        _png(ds / "images" / v.image_file, i)
+        np.save(ds / "depth" / f"{v.name}.npy", np.full((H, W), 4.0, np.float32))
+    write_colmap_text(SparseModel(views), ds / "sparse" / "0")
+    secret = tmp / "outside" / ("x.npy" if folder == "depth" else "x.png")
+    if folder == "depth":
+        np.save(secret, np.full((H, W), 4.0, np.float32))
+    _escape(attack, ds, secret, ds / folder / ("v0.npy" if folder == "depth" else "v0.png"))
+    return ["fuse", ds]
+
+
 def _photos_scene(tmp, attack):
     photos = tmp / "in" / "photos"
     for i in range(3):
@@ -199,10 +215,13 @@ READERS = {
     "dataset-depth": lambda t, a: _dataset_scene(t, a, "depth_file_path"),
     "dataset-mask": lambda t, a: _dataset_scene(t, a, "mask_path"),
     "dataset-colmap": _dataset_colmap_scene,
+    "dataset-depth-link": lambda t, a: _dataset_files_scene(t, a, "depth"),
+    "dataset-mask-link": lambda t, a: _dataset_files_scene(t, a, "masks"),
     "photo-folder": _photos_scene,
 }
 CASES = [(r, a) for r in READERS for a in ("dotdot", "absolute", "symlink")
-         if a == "symlink" or r not in ("neus", "neus-images", "llff", "strecha", "photo-folder")]
+         if a == "symlink" or r not in ("neus", "neus-images", "llff", "strecha", "photo-folder", "dataset-depth-link",
+                                        "dataset-mask-link")]
 
 
 @pytest.mark.parametrize("reader,attack", CASES)

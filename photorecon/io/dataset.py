@@ -141,7 +141,7 @@ class Dataset:
     def depth_path(self, view: View) -> Path:
         """DEPTH_DIR/NAME.npy, else (when the depth folder is the default one) the frame's ``depth_file_path``
         from a transforms.json (confined to its folder)."""
-        p = self.depth_dir / f"{view.name}.npy"
+        p = inside(self.depth_dir, f"{view.name}.npy", f"view {view.name}")
         if not p.is_file() and view.depth_file and self.depth_dir == self.layout.depth:
             return Path(view.depth_file)
         return p
@@ -165,13 +165,13 @@ class Dataset:
         return self.depth_path(view).is_file()
 
     def confidence(self, view: View) -> np.ndarray | None:
-        p = self.depth_dir / f"{view.name}.conf.npy"
+        p = inside(self.depth_dir, f"{view.name}.conf.npy", f"view {view.name}")
         return np.load(p).astype(np.float32) if p.is_file() else None
 
     def normals(self, view: View) -> np.ndarray | None:
         """PatchMatch's per-pixel normals (H, W, 3) float32 in the camera frame (DEPTH_DIR/NAME.normal.npy),
         or None when there are none (rendered, monocular or sensor depth)."""
-        p = self.depth_dir / f"{view.name}.normal.npy"
+        p = inside(self.depth_dir, f"{view.name}.normal.npy", f"view {view.name}")
         if not p.is_file():
             return None
         try:
@@ -192,6 +192,8 @@ class Dataset:
         p = mask_file(self.masks_dir, self._image_name(view))
         if p is None and (self.masks_dir / f"{view.name}.png").is_file():  # a view named apart from its file
             p = self.masks_dir / f"{view.name}.png"
+        if p is not None:
+            p = inside(self.masks_dir, p.name, f"view {view.name}")
         return p
 
     def mask(self, view: View) -> np.ndarray | None:
