@@ -195,6 +195,21 @@ def _dataset_files_scene(tmp, attack, folder):
     return ["fuse", ds]
 
 
+def _masks_option_scene(tmp, attack):
+    """``--masks DIR``: a mask in it that is a link to a file elsewhere."""
+    images = tmp / "in" / "images"
+    views = _views()
+    for i, v in enumerate(views):
+        _png(images / v.image_file, i)
+    write_colmap_text(SparseModel(views), tmp / "in" / "model")
+    masks = tmp / "in" / "masks"
+    masks.mkdir()
+    for v in views[1:]:
+        cv2.imwrite(str(masks / v.image_file), np.full((H, W), 255, np.uint8))
+    _escape(attack, masks, tmp / "outside" / "x.png", masks / "v0.png")
+    return ["reconstruct", images, "--poses", tmp / "in" / "model", "--masks", masks]
+
+
 def _photos_scene(tmp, attack):
     photos = tmp / "in" / "photos"
     for i in range(3):
@@ -217,11 +232,12 @@ READERS = {
     "dataset-colmap": _dataset_colmap_scene,
     "dataset-depth-link": lambda t, a: _dataset_files_scene(t, a, "depth"),
     "dataset-mask-link": lambda t, a: _dataset_files_scene(t, a, "masks"),
+    "masks-option": _masks_option_scene,
     "photo-folder": _photos_scene,
 }
 CASES = [(r, a) for r in READERS for a in ("dotdot", "absolute", "symlink")
          if a == "symlink" or r not in ("neus", "neus-images", "llff", "strecha", "photo-folder", "dataset-depth-link",
-                                        "dataset-mask-link")]
+                                        "dataset-mask-link", "masks-option")]
 
 
 @pytest.mark.parametrize("reader,attack", CASES)
