@@ -26,8 +26,11 @@ COLMAP_MODELS: dict[str, tuple[str, ...]] = {
     "SIMPLE_RADIAL": ("f", "cx", "cy", "k1"),
     "RADIAL": ("f", "cx", "cy", "k1", "k2"),
     "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
 }
-_DIST_KEYS = ("k1", "k2", "p1", "p2")
+_DIST_KEYS = ("k1", "k2", "p1", "p2", "k3", "k4")
+_MODEL_KEYS = {"SIMPLE_PINHOLE": (), "PINHOLE": (), "SIMPLE_RADIAL": ("k1",), "RADIAL": ("k1", "k2"),
+               "OPENCV": ("k1", "k2", "p1", "p2"), "OPENCV_FISHEYE": ("k1", "k2", "k3", "k4")}
 
 
 @dataclass(frozen=True)
@@ -37,6 +40,9 @@ class Intrinsics:
     ``fx, fy, cx, cy`` in pixels with pixel (0, 0) at the centre of the top-left pixel (OpenCV);
     ``width, height`` in pixels; ``model`` one of ``COLMAP_MODELS``; ``k1, k2`` radial and ``p1, p2``
     tangential distortion with COLMAP's (= OpenCV's) formulas, applied to normalised coordinates.
+    ``OPENCV_FISHEYE`` (COLMAP's, = OpenCV's ``cv2.fisheye`` model): the equidistant projection, a point at
+    angle theta from the axis lands at radius ``theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``
+    in normalised coordinates; it always counts as distorted (all k = 0 is still no pinhole).
     """
 
     width: int
@@ -50,13 +56,15 @@ class Intrinsics:
     k2: float = 0.0
     p1: float = 0.0
     p2: float = 0.0
+    k3: float = 0.0
+    k4: float = 0.0
 
     def __post_init__(self):
         if self.model not in COLMAP_MODELS:
             raise BadArgumentError(f"camera model: expected one of {sorted(COLMAP_MODELS)}, got {self.model!r}")
         if not (int(self.width) == self.width and int(self.height) == self.height and self.width > 0 and self.height > 0):
             raise BadArgumentError(f"image size: expected positive integer width and height, got {self.width}x{self.height}")
-        vals = [self.fx, self.fy, self.cx, self.cy, self.k1, self.k2, self.p1, self.p2]
+        vals = [self.fx, self.fy, self.cx, self.cy] + [getattr(self, k) for k in _DIST_KEYS]
         if not all(math.isfinite(float(v)) for v in vals):
             raise BadArgumentError(f"intrinsics: expected finite values, got fx={self.fx} fy={self.fy} cx={self.cx} cy={self.cy}")
         if self.fx <= 0 or self.fy <= 0:
@@ -64,8 +72,7 @@ class Intrinsics:
         if self.model.startswith("SIMPLE") or self.model == "RADIAL":
             if abs(self.fx - self.fy) > 1e-9 * self.fx:
                 raise BadArgumentError(f"{self.model} has one focal length, got fx={self.fx} != fy={self.fy}")
-        allowed = {"SIMPLE_PINHOLE": (), "PINHOLE": (), "SIMPLE_RADIAL": ("k1",), "RADIAL": ("k1", "k2"),
-                   "OPENCV": _DIST_KEYS}[self.model]
+        allowed = _MODEL_KEYS[self.model]
         for k in _DIST_KEYS:
             if k not in allowed and getattr(self, k) != 0.0:
                 raise BadArgumentError(f"{self.model} has no parameter {k}, got {k}={getattr(self, k)}")
@@ -105,11 +112,21 @@ class Intrinsics:
 
     @property
     def has_distortion(self) -> bool:
-        return any(getattr(self, k) != 0.0 for k in _DIST_KEYS)
+        return self.fisheye or any(getattr(self, k) != 0.0 for k in _DIST_KEYS)
+
+    @property
+    def fisheye(self) -> bool:
+        return self.model == "OPENCV_FISHEYE"
+
+    @property
+    def dist_coeffs(self) -> np.ndarray:
+        """OpenCV's distortion vector: (k1, k2, p1, p2) for ``cv2.undistort``, or (k1, k2, k3, k4) for
+        ``cv2.fisheye`` when ``fisheye``."""
+        return np.array([getattr(self, k) for k in (("k1", "k2", "k3", "k4") if self.fisheye else _DIST_KEYS[:4])])
 
     def pinhole(self) -> "Intrinsics":
         """The same camera with distortion dropped (what undistorted images use)."""
-        return replace(self, model="PINHOLE", k1=0.0, k2=0.0, p1=0.0, p2=0.0)
+        return replace(self, model="PINHOLE", k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0, k4=0.0)
 
     def scaled(self, width: int, height: int) -> "Intrinsics":
         """Intrinsics for the image resized to ``width`` x ``height``.
@@ -127,6 +144,14 @@ class Intrinsics:
         """Normalised undistorted (N, 2) -> normalised distorted (N, 2), COLMAP/OpenCV formulas."""
         if not self.has_distortion:
             return xy
+        if self.fisheye:
+            r = np.hypot(xy[:, 0], xy[:, 1])
+            th = np.arctan(r)
+            t2 = th * th
+            th_d = th * (1 + t2 * (self.k1 + t2 * (self.k2 + t2 * (self.k3 + t2 * self.k4))))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = np.where(r > 1e-12, th_d / np.where(r > 1e-12, r, 1.0), 1.0)
+            return xy * s[:, None]
         x, y = xy[:, 0], xy[:, 1]
         r2 = x * x + y * y
         radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2

@@ -83,7 +83,7 @@ def colmap_from_intrinsics(intr: Intrinsics) -> tuple[str, int, int, list[float]
     """``Intrinsics`` -> (model, width, height, params) in COLMAP's parameter order and pixel convention."""
     cx, cy = (float(c) for c in colmap_from_opencv_pixels([intr.cx, intr.cy]))
     vals = {"f": intr.fx, "fx": intr.fx, "fy": intr.fy, "cx": cx, "cy": cy,
-            "k1": intr.k1, "k2": intr.k2, "p1": intr.p1, "p2": intr.p2}
+            "k1": intr.k1, "k2": intr.k2, "p1": intr.p1, "p2": intr.p2, "k3": intr.k3, "k4": intr.k4}
     return intr.model, intr.width, intr.height, [float(vals[n]) for n in COLMAP_MODELS[intr.model]]
 
 

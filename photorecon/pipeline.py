@@ -32,13 +32,12 @@ import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from . import __version__
 from .depth.mvs import MVSConfig
 from .distributed import ClusterConfig, make_executor
-from .errors import BadArgumentError, InputDataError, NoDepthError, NoImagesError
+from .errors import BadArgumentError, NoDepthError, NoImagesError
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
@@ -99,74 +98,6 @@ class ReconstructResult(Result):
     units: str  # "metres" when a scale was found, else "arbitrary"
 
 
-def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
-    """Given cameras: copy (and, for distorted cameras, undistort with OpenCV) the images into OUT/images.
-    An image's mask in ``masks_dir`` (NAME.EXT.png or NAME.png, 0 = ignore), else its alpha channel (RGBA,
-    grey + alpha), becomes OUT/masks/NAME.png (255 where > 0), undistorted like the image, so the depth and
-    fusion stages use it as a mask."""
-    from .cameras import View
-    from .io.colmap_text import SparseModel
-    from .io.images import damaged_image, mask_file, read_alpha, read_image, read_mask, write_image
-
-    layout = Layout(out)
-    img_out, mask_out = layout.images, layout.masks
-    img_out.mkdir(parents=True, exist_ok=True)
-    views, damaged = [], []
-    for v in model.views:
-        name = v.image_file or v.name
-        src = images_dir / name
-        if not src.is_file():
-            cands = [p for p in images_dir.glob(v.name + ".*")]
-            if not cands:
-                raise InputDataError(f"view {v.name}: image {name} not found in {images_dir}")
-            src = cands[0]
-        # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
-        why = damaged_image(src) if src.suffix.lower() in (".jpg", ".jpeg") else None
-        img = None
-        if not why:
-            try:
-                img = read_image(src)
-            except InputDataError:
-                why = damaged_image(src)
-                if not why:
-                    raise
-        if why:
-            log.warning("view %s: image %s is %s; view skipped", v.name, src, why)
-            damaged.append(v.name)
-            continue
-        if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
-            raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
-                                 f"{v.intrinsics.width}x{v.intrinsics.height}")
-        user_mask = mask_file(masks_dir, src.name) if masks_dir else None
-        if user_mask is not None:
-            m = read_mask(user_mask, (img.shape[1], img.shape[0]), f"image {src.name}")
-        else:
-            alpha = read_alpha(src)
-            m = None if alpha is None else alpha > 0
-        mask = None if m is None else np.where(m, 255, 0).astype(np.uint8)
-        intr = v.intrinsics
-        if intr.has_distortion:
-            dist = np.array([intr.k1, intr.k2, intr.p1, intr.p2])
-            img = cv2.undistort(img, intr.K, dist, None, intr.K)
-            if mask is not None:  # same maps; outside the source image -> 0 (no data)
-                mask = np.where(cv2.undistort(mask, intr.K, dist, None, intr.K) >= 128, 255, 0).astype(np.uint8)
-            intr = intr.pinhole()
-        dst_name = Path(src.name).stem + ".png"
-        write_image(img_out / dst_name, img)
-        mask_path = mask_out / dst_name  # the output model names the view after its image's stem
-        if mask is not None:
-            mask_out.mkdir(exist_ok=True)
-            write_image(mask_path, mask)
-        else:
-            mask_path.unlink(missing_ok=True)  # a stale mask from an earlier run with other images
-        views.append(View(v.name, intr, v.cam_from_world, image_file=dst_name))
-    if damaged and len(views) < 2:
-        raise InputDataError(f"{images_dir}: {len(views)} usable image(s) for the given cameras"
-                             + (f" ({len(damaged)} truncated or damaged: {', '.join(damaged[:5])})" if damaged else "")
-                             + "; at least 2 needed")
-    return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
-
-
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
                  executor=None):
     """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``.
@@ -198,7 +129,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
                 overwrite: bool = False) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
     from .io.output import output_folder
-    from .poses.ingest import VIDEO_SUFFIXES
+    from .poses.ingest import VIDEO_SUFFIXES, not_a_folder
     from .mesh import parse_formats
 
     cfgs = cfgs or StageConfigs()
@@ -206,7 +137,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     images = Path(images)
     is_video = images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES
     if not images.is_dir() and not is_video:
-        raise NoImagesError(f"{images}: no such image folder (or video file)")
+        raise NoImagesError(not_a_folder(images))
     if is_video and run.poses:
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
@@ -242,6 +173,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
     from .io.nerf import write_transforms
     from .mesh import export, load_mesh
     from .report.preview import render_preview
+    from .poses.ingest import ingest_given
     from .poses.scale import given_units, scale_output
     from .poses.sfm import run_sfm
 
@@ -267,7 +199,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         def poses() -> dict:
             if run.poses:
                 shutil.rmtree(layout.images, ignore_errors=True)  # no image left from an earlier SfM run
-                model = _undistort_given(read_model(run.poses), images, out, masks)
+                model = ingest_given(read_model(run.poses), images, out, masks)
                 write_colmap_text(model, layout.sparse)
                 write_transforms(model.views, layout.transforms)
                 info = {"source": run.poses, "registered": len(model.views), "unregistered": []}

@@ -115,7 +115,7 @@ def test_reconstruct_given_poses_writes_alpha_masks(rgba, blob_small, tmp_path):
 
 
 def test_undistorted_mask_follows_the_image(rgba, tmp_path):
-    from photorecon.pipeline import _undistort_given
+    from photorecon.poses.ingest import ingest_given
 
     # images whose colour is their mask, behind a distorted camera
     images = tmp_path / "images"
@@ -127,7 +127,7 @@ def test_undistorted_mask_follows_the_image(rgba, tmp_path):
         cv2.imwrite(str(images / f"{v.name}.png"), np.dstack([a, a, a, a]))
         intr = dataclasses.replace(v.intrinsics, model="OPENCV", k1=-0.25, k2=0.05)
         views.append(dataclasses.replace(v, intrinsics=intr))
-    res = _undistort_given(SparseModel(views), images, tmp_path / "out")
+    res = ingest_given(SparseModel(views), images, tmp_path / "out")
     for v, src in zip(res.views, views):
         assert not v.intrinsics.has_distortion
         mask = cv2.imread(str(tmp_path / "out" / "masks" / f"{v.name}.png"), cv2.IMREAD_GRAYSCALE) > 0

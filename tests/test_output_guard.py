@@ -182,7 +182,8 @@ def test_a_failed_run_leaves_no_partial_result(scene, tmp_path, monkeypatch, cap
     """synth failing after 5 images: nothing of it is left (a new folder is removed); reconstruct failing in the
     poses stage after copying 5 images: no images/, no stage marker, no report; a stage that completed keeps
     its output."""
-    from photorecon import pipeline, synthetic
+    from photorecon import synthetic
+    from photorecon.poses import ingest
     from photorecon.stages import Stages
 
     calls = []
@@ -201,7 +202,7 @@ def test_a_failed_run_leaves_no_partial_result(scene, tmp_path, monkeypatch, cap
     monkeypatch.undo()
 
     ds = scene[0]
-    real_undistort = pipeline._undistort_given
+    real_undistort = ingest.ingest_given
 
     def half(model, images, dst, masks=None):
         (dst / "images").mkdir(parents=True, exist_ok=True)
@@ -209,14 +210,14 @@ def test_a_failed_run_leaves_no_partial_result(scene, tmp_path, monkeypatch, cap
             shutil.copy(p, dst / "images" / p.name)
         raise OSError(5, "Input/output error")
 
-    monkeypatch.setattr(pipeline, "_undistort_given", half)
+    monkeypatch.setattr(ingest, "ingest_given", half)
     rec = tmp_path / "rec"
     argv = ["-q", "reconstruct", str(ds / "images"), "-o", str(rec), "--poses", str(ds / "transforms.json"),
             "--depth", str(ds / "depth")]
     assert main(argv) != 0
     assert not (rec / "images").exists() and not (rec / ".stages" / "poses.json").exists()
     assert not (rec / "report.json").exists()
-    monkeypatch.setattr(pipeline, "_undistort_given", real_undistort)
+    monkeypatch.setattr(ingest, "ingest_given", real_undistort)
     assert real_undistort is not half
 
     stages = Stages(tmp_path / "st" / ".stages")

@@ -362,13 +362,13 @@ def test_too_few_complete_photos_is_the_usual_error(blob_small, tmp_path):
 def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, caplog):
     from photorecon.errors import InputDataError
     from photorecon.io.dataset import read_model
-    from photorecon.pipeline import _undistort_given
+    from photorecon.poses.ingest import ingest_given
 
     photos = _jpeg_folder(blob_small / "images", tmp_path / "photos")
     _truncate(photos / "view_004.jpg")
     model = read_model(blob_small / "sparse" / "0")
     with caplog.at_level(logging.WARNING, logger="photorecon"):
-        out = _undistort_given(model, photos, tmp_path / "out")
+        out = ingest_given(model, photos, tmp_path / "out")
     assert [v.name for v in out.views] == [v.name for v in model.views if v.name != "view_004"]
     assert any("view_004.jpg" in r.getMessage() and "truncated" in r.getMessage() for r in caplog.records)
     assert not (tmp_path / "out" / "images" / "view_004.png").exists()
@@ -376,7 +376,7 @@ def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, capl
         if p.name != "view_000.jpg":
             _truncate(p)
     with pytest.raises(InputDataError, match="1 usable image.*truncated or damaged"):
-        _undistort_given(model, photos, tmp_path / "out2")
+        ingest_given(model, photos, tmp_path / "out2")
 
 
 # --- every listed image format works end to end --------------------------------------------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import signal
 import sys
 
@@ -55,7 +56,9 @@ def _load_commands() -> None:
 
 
 def _one_line(text: str, limit: int = 400) -> str:
-    text = " ".join(str(text).split())
+    """``text`` on one line, at most ``limit`` characters: each line break (with the spaces around it) becomes
+    one space; other spaces stay, since a file name in the message may hold two in a row."""
+    text = re.sub(r"[ \t]*[\r\n]+[ \t]*", " ", str(text)).strip()
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

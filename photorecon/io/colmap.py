@@ -16,9 +16,12 @@ from ..cameras import View
 from ..conventions import intrinsics_from_colmap, opencv_from_colmap_pixels
 from ..errors import BadArgumentError, InputDataError
 from .colmap_text import SparseModel, write_colmap_text
+from .paths import inside
 
 
-def sparse_from_pycolmap(rec) -> SparseModel:
+def sparse_from_pycolmap(rec, where: str = "COLMAP model") -> SparseModel:
+    """A pycolmap ``Reconstruction`` as a ``SparseModel`` (registered images only); ``where`` names the model in
+    errors. Image names are checked by ``paths.inside`` (relative, not leaving the image folder)."""
     views, obs = [], {}
     for image_id in sorted(rec.reg_image_ids()):
         image = rec.images[image_id]
@@ -30,6 +33,7 @@ def sparse_from_pycolmap(rec) -> SparseModel:
             raise InputDataError(f"image {image.name}: {exc}") from None
         M = np.eye(4)
         M[:3] = image.cam_from_world().matrix()
+        inside(None, image.name, f"{where} image {image_id}")
         stem = Path(image.name).stem
         views.append(View(stem, intr, M, image_file=image.name, extra={"colmap_image_id": int(image_id)}))
         pts = image.points2D
@@ -51,7 +55,7 @@ def read_colmap_binary(folder: str | Path) -> SparseModel:
         rec = pycolmap.Reconstruction(str(folder))
     except Exception as exc:  # pycolmap raises RuntimeError/ValueError on unreadable models
         raise InputDataError(f"{folder}: cannot read the COLMAP model ({exc})") from None
-    return sparse_from_pycolmap(rec)
+    return sparse_from_pycolmap(rec, str(folder))
 
 
 def write_colmap_binary(model: SparseModel, folder: str | Path) -> Path:

@@ -2,9 +2,13 @@
 
 COLMAP's pixel convention (centre of the top-left pixel at (0.5, 0.5)) is converted here, once: everything
 returned uses photorecon's OpenCV convention. Binary models are read through ``photorecon.sfm``.
+
+An image's NAME is the rest of its line after CAMERA_ID and one space, spaces included (``" a  b.png"`` is a
+file name). Names are relative to the image folder (``paths.inside``: absolute paths and ``..`` are refused).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,6 +19,7 @@ from ..conventions import (colmap_from_intrinsics, colmap_from_opencv, colmap_fr
                            intrinsics_from_colmap, opencv_from_colmap, opencv_from_colmap_pixels)
 from ..errors import InputDataError
 from .atomic import atomic_write_text
+from .paths import inside
 
 
 @dataclass
@@ -97,6 +102,10 @@ def write_colmap_text(model: SparseModel, folder: str | Path) -> Path:
     return folder
 
 
+# IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID, one separator, then NAME: the rest of the line
+_IMAGE_LINE = re.compile(r"\s*(\S+(?:[ \t]+\S+){8})[ \t](.*)")
+
+
 def _data_lines(path: Path) -> list[str]:
     if not path.is_file():
         raise InputDataError(f"{path}: missing; a COLMAP text model needs cameras.txt, images.txt and points3D.txt")
@@ -133,16 +142,20 @@ def read_colmap_text(folder: str | Path) -> SparseModel:
         if not ln.strip():
             continue
         try:
-            tok = ln.split()
+            m = _IMAGE_LINE.fullmatch(ln)
+            if m is None or not m.group(2):
+                raise ValueError("expected IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME")
+            tok, name = m.group(1).split(), m.group(2)
             q = np.array([float(x) for x in tok[1:5]])
             t = np.array([float(x) for x in tok[5:8]])
-            cam_id, name = int(tok[8]), " ".join(tok[9:])
+            cam_id = int(tok[8])
             intr = cams[cam_id]
             T = opencv_from_colmap(q / np.linalg.norm(q), t)
             p = pts.split()
             arr = np.array([float(x) for x in p], dtype=np.float64).reshape(-1, 3)
         except (ValueError, IndexError, KeyError) as exc:
             raise InputDataError(f"{path}: cannot parse image entry {ln!r}: {exc!r}") from None
+        inside(None, name, f"{path} image {tok[0]}")
         stem = Path(name).stem
         views.append(View(stem, intr, T, image_file=name, extra={"colmap_image_id": int(tok[0]),
                                                  "colmap_camera_id": cam_id}))

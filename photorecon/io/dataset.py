@@ -2,6 +2,8 @@
 
     DATASET/images/NAME.png|jpg   DATASET/depth/NAME.npy (+ optional NAME.conf.npy)   DATASET/masks/NAME.png
     DATASET/sparse/0/             (COLMAP text or binary)  or  DATASET/transforms.json
+
+Every file a camera file names is read from inside the dataset folder (``paths.inside``).
 """
 from __future__ import annotations
 
@@ -17,13 +19,20 @@ from .colmap_text import SparseModel, read_colmap_text
 from .images import mask_file, match_masks, read_alpha, read_depth, read_image, read_mask
 from .formats import NEUS_FILES, read_llff, read_neus
 from .nerf import BLENDER_SPLITS, read_blender, read_transforms
+from .paths import IMAGE_SUFFIXES, check_distinct_views, inside
 from .strecha import read_strecha
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 MIN_DEPTH_SIDE = 64  # a depth map at a working resolution: at least this long side (MVS's smallest --max-size)
 
 
 def read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
+    """``_read_model``, with two images that would be one view (``view_000.png``, ``view_000.jpg``) refused
+    (``InputDataError`` naming both)."""
+    model = _read_model(path, neus_world)
+    check_distinct_views(((v.name, v.image_file or v.name) for v in model.views), str(path))
+    return model
+
+
+def _read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
     """Cameras (and sparse points, if any) from, checked in this order:
 
     * a file: ``*.json`` (transforms.json, including NeRF Blender-synthetic ``transforms_SPLIT.json``),
@@ -51,7 +60,7 @@ def read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
         return read_colmap_binary(path)
     for sub in ("sparse/0", "sparse"):
         if (path / sub / "cameras.txt").is_file() or (path / sub / "cameras.bin").is_file():
-            return read_model(path / sub)
+            return _read_model(path / sub)
     if (path / "transforms.json").is_file():
         return SparseModel(read_transforms(path / "transforms.json"))
     if any((path / f"transforms_{s}.json").is_file() for s in BLENDER_SPLITS):
@@ -96,6 +105,8 @@ class Dataset:
         if not model.views:
             raise InputDataError(f"{root}: the camera model has no images")
         ds = cls(root, model, Path(depth_dir) if depth_dir else Layout(root).depth, Path(masks_dir) if masks_dir else None)
+        for v in ds.views:  # every image inside the dataset (``paths.inside``), before anything is written
+            ds.image_path(v)
         if masks_dir:
             match_masks(masks_dir, {ds._image_name(v): v.intrinsics.size for v in ds.views})
         return ds
@@ -105,16 +116,19 @@ class Dataset:
         return self.model.views
 
     def image_path(self, view: View) -> Path:
+        """The view's image: the path its camera file gave (a transforms.json's, already inside the dataset),
+        else ``images/FILE`` (the file a COLMAP model names), else ``images/NAME.EXT`` for any image
+        extension; each inside ``images/`` (``paths.inside``)."""
         if view.image_path:
             return Path(view.image_path)
         name = view.image_file or view.name
-        p = self.layout.images / name
+        p = inside(self.layout.images, name, f"view {view.name}")
         if p.is_file():
             return p
         for suf in IMAGE_SUFFIXES:
             q = self.layout.images / (view.name + suf)
             if q.is_file():
-                return q
+                return inside(self.layout.images, q.name, f"view {view.name}")
         return p
 
     def image(self, view: View) -> np.ndarray:
@@ -127,7 +141,7 @@ class Dataset:
     def depth_path(self, view: View) -> Path:
         """DEPTH_DIR/NAME.npy, else (when the depth folder is the default one) the frame's ``depth_file_path``
         from a transforms.json (confined to its folder)."""
-        p = self.depth_dir / f"{view.name}.npy"
+        p = inside(self.depth_dir, f"{view.name}.npy", f"view {view.name}")
         if not p.is_file() and view.depth_file and self.depth_dir == self.layout.depth:
             return Path(view.depth_file)
         return p
@@ -151,13 +165,13 @@ class Dataset:
         return self.depth_path(view).is_file()
 
     def confidence(self, view: View) -> np.ndarray | None:
-        p = self.depth_dir / f"{view.name}.conf.npy"
+        p = inside(self.depth_dir, f"{view.name}.conf.npy", f"view {view.name}")
         return np.load(p).astype(np.float32) if p.is_file() else None
 
     def normals(self, view: View) -> np.ndarray | None:
         """PatchMatch's per-pixel normals (H, W, 3) float32 in the camera frame (DEPTH_DIR/NAME.normal.npy),
         or None when there are none (rendered, monocular or sensor depth)."""
-        p = self.depth_dir / f"{view.name}.normal.npy"
+        p = inside(self.depth_dir, f"{view.name}.normal.npy", f"view {view.name}")
         if not p.is_file():
             return None
         try:
@@ -178,6 +192,8 @@ class Dataset:
         p = mask_file(self.masks_dir, self._image_name(view))
         if p is None and (self.masks_dir / f"{view.name}.png").is_file():  # a view named apart from its file
             p = self.masks_dir / f"{view.name}.png"
+        if p is not None:
+            p = inside(self.masks_dir, p.name, f"view {view.name}")
         return p
 
     def mask(self, view: View) -> np.ndarray | None:

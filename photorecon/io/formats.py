@@ -1,7 +1,8 @@
 """Camera files of two NeRF-era dataset layouts, read and written: IDR / NeuS ``cameras_sphere.npz`` and
 LLFF ``poses_bounds.npy``. Both pair the i-th camera with the i-th image file in sorted order.
 
-IDR / NeuS (``SCENE/cameras_sphere.npz`` or ``cameras.npz``, images in ``SCENE/image/``):
+IDR / NeuS (``SCENE/cameras_sphere.npz`` or ``cameras.npz``, images in ``SCENE/image/``, or ``SCENE/images/``
+as many copies of the layout name it; masks in ``SCENE/mask/`` or ``SCENE/masks/``):
 
 * ``world_mat_i`` (3x4 or 4x4) is the projection ``K [R | t]`` (up to scale) from the *original* world to
   pixels; ``scale_mat_i`` maps the *normalised* world (the object inside the unit sphere) to the original one:
@@ -17,6 +18,8 @@ LLFF (``SCENE/poses_bounds.npy``, images in ``SCENE/images/``): N x 17, per imag
 row-major, then ``near, far``. Its columns: the camera-to-world rotation in LLFF camera axes
 (x down, y right, z backward), the camera centre, and ``[H, W, focal]``. The principal point is the image
 centre. Images whose size differs from (W, H) (LLFF's ``images_4``-style downscales) get scaled intrinsics.
+
+Both list their image folder through ``paths.files_inside``: a link to a file outside it is refused.
 """
 from __future__ import annotations
 
@@ -31,10 +34,10 @@ from ..conventions import opencv_from_opengl, opengl_from_opencv
 from ..errors import BadArgumentError, InputDataError
 from .atomic import atomic_path
 from .nerf import image_size
+from .paths import IMAGE_SUFFIXES, files_inside
 
 log = logging.getLogger("photorecon")
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 NEUS_FILES = ("cameras_sphere.npz", "cameras.npz")
 NEUS_WORLDS = ("normalized", "original")
 # LLFF camera axes (x down, y right, z backward) <- OpenGL camera axes (x right, y up, z backward):
@@ -43,11 +46,19 @@ NEUS_WORLDS = ("normalized", "original")
 LLFF_FROM_GL = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
 
 
+NEUS_IMAGES = ("image", "images")
+NEUS_MASKS = ("mask", "masks")
+
+
 def sorted_images(folder: Path) -> list[Path]:
-    """Image files of ``folder`` in sorted name order (as the NeuS / IDR / LLFF loaders list them)."""
-    if not folder.is_dir():
-        return []
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    """Image files of ``folder`` in sorted name order (as the NeuS / IDR / LLFF loaders list them; hidden files
+    skipped, as their ``glob`` does); a link to a file outside ``folder`` raises ``InputDataError``."""
+    return files_inside(folder, IMAGE_SUFFIXES)
+
+
+def _neus_folder(scene: Path, names: tuple[str, ...]) -> Path:
+    """The first of ``scene/NAME`` holding images (IDR's ``image/``, else ``images/``), else the first one."""
+    return next((scene / n for n in names if sorted_images(scene / n)), scene / names[0])
 
 
 def _check_count(path: Path, n: int, images: list[Path], folder: Path):
@@ -88,7 +99,8 @@ def _neus_file(path: Path) -> Path:
 
 
 def read_neus(path: str | Path, world: str = "normalized") -> list[View]:
-    """Views from an IDR / NeuS camera file (or the folder holding it); images from ``image/`` next to it."""
+    """Views from an IDR / NeuS camera file (or the folder holding it); images from ``image/`` (or
+    ``images/``) next to it, masks from ``mask/`` (or ``masks/``) when there is one per camera."""
     if world not in NEUS_WORLDS:
         raise BadArgumentError(f"NeuS world: expected one of {NEUS_WORLDS}, got {world!r}")
     path = _neus_file(Path(path))
@@ -105,10 +117,10 @@ def read_neus(path: str | Path, world: str = "normalized") -> list[View]:
     n = 0
     while f"world_mat_{n}" in data:
         n += 1
-    folder = path.parent / "image"
+    folder = _neus_folder(path.parent, NEUS_IMAGES)
     images = sorted_images(folder)
     _check_count(path, n, images, folder)
-    masks = sorted_images(path.parent / "mask")
+    masks = sorted_images(_neus_folder(path.parent, NEUS_MASKS))
     no_scale = [i for i in range(n) if f"scale_mat_{i}" not in data]
     if world == "normalized" and no_scale:
         log.warning("%s: no scale_mat for %d camera(s); the normalised world is the original one there", path,

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import InputDataError
 from .atomic import atomic_path
+from .paths import inside
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -102,11 +103,12 @@ MASK_HELP = "masks are NAME.png or NAME.EXT.png (COLMAP's naming, e.g. IMG_1.jpg
 
 def mask_file(folder: str | Path, image_name: str) -> Path | None:
     """The mask of image ``image_name`` in ``folder``: ``NAME.EXT.png`` (COLMAP's naming, checked first) or
-    ``NAME.png`` (the image's stem), or None when neither exists."""
+    ``NAME.png`` (the image's stem), or None when neither exists. A mask that is a link to a file outside
+    ``folder`` raises ``InputDataError`` (``paths.inside``)."""
     folder, name = Path(folder), Path(image_name).name
-    for cand in (folder / f"{name}.png", folder / f"{Path(name).stem}.png"):
-        if cand.is_file():
-            return cand
+    for cand in (f"{name}.png", f"{Path(name).stem}.png"):
+        if (folder / cand).is_file():
+            return inside(folder, cand, f"image {name}")
     return None
 
 

@@ -5,9 +5,16 @@
   The file records it as ``"photorecon_world"``; nerfstudio's variant also gets ``applied_transform``.
 * ``cx, cy`` follow nerfstudio and instant-ngp, which cast rays through ``pixel + 0.5``: the centre of the
   top-left pixel is (0.5, 0.5), like COLMAP. Converted here, once.
-* Frame paths are confined to the file's folder: absolute paths and ``..`` escapes are refused. A path without
+* Frame paths (``file_path``, ``depth_file_path``, ``mask_path``) lie inside the file's folder
+  (``paths.inside``: absolute paths, ``..`` escapes and links to files outside are refused). A path without
   an extension (the Blender-synthetic ``./train/r_0``) names ``./train/r_0.png``.
-* Intrinsics: ``fl_x, fl_y, cx, cy, w, h`` (+ ``k1 k2 p1 p2``) at the top level, each overridable per frame.
+* Intrinsics: ``fl_x, fl_y, cx, cy, w, h`` (+ ``k1 k2 p1 p2``, or ``k1 k2 k3 k4`` for a fisheye) at the top
+  level, each overridable per frame. ``camera_model`` (nerfstudio's; per frame too) picks the lens:
+  ``PINHOLE``, ``SIMPLE_PINHOLE``, ``SIMPLE_RADIAL``, ``RADIAL``, ``OPENCV`` (k1 k2 p1 p2) or
+  ``OPENCV_FISHEYE`` (k1..k4, OpenCV's fisheye model; instant-ngp's ``"is_fisheye": true`` says the same).
+  The other models (``EQUIRECTANGULAR``, ``OMNIDIRECTIONALSTEREO_*``, ``VR180_*``, ``FISHEYE624``, ...) and
+  coefficients a model does not hold (``k3`` of a perspective camera, instant-ngp's OpenCV 5-parameter
+  lens) are refused, naming the frame.
   The NeRF Blender-synthetic files (``transforms_{train,val,test}.json``) give only ``camera_angle_x`` (and
   optionally ``camera_angle_y``): ``fl_x = 0.5 W / tan(0.5 camera_angle_x)`` with W, H from the image file,
   and the principal point at the image centre, ``cx, cy = W/2, H/2`` in NeRF pixels (= (W-1)/2, (H-1)/2 in
@@ -29,18 +36,24 @@ from ..conventions import (NERF_WORLDS, colmap_from_opencv_pixels, nerf_from_ope
                            opencv_from_nerf)
 from ..errors import InputDataError
 from .atomic import atomic_write_json
+from .paths import inside
 
 log = logging.getLogger("photorecon")
 
-_INTR_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "p1", "p2", "camera_angle_x", "camera_angle_y")
+_DIST = ("k1", "k2", "k3", "k4", "p1", "p2")
+_INTR_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h", *_DIST, "camera_angle_x", "camera_angle_y", "camera_model",
+              "is_fisheye")
+# nerfstudio's camera_model values: the perspective ones hold k1 k2 p1 p2, the fisheye k1..k4
+PERSPECTIVE_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+FISHEYE_MODELS = ("OPENCV_FISHEYE",)
 BLENDER_SPLITS = ("train", "val", "test")
 
 
 def _intr_dict(intr: Intrinsics) -> dict:
-    d = {"camera_model": "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy, "cx": float(colmap_from_opencv_pixels(intr.cx)),
-         "cy": float(colmap_from_opencv_pixels(intr.cy)),
+    d = {"camera_model": "OPENCV_FISHEYE" if intr.fisheye else "OPENCV", "fl_x": intr.fx, "fl_y": intr.fy,
+         "cx": float(colmap_from_opencv_pixels(intr.cx)), "cy": float(colmap_from_opencv_pixels(intr.cy)),
          "w": intr.width, "h": intr.height}
-    d.update({k: getattr(intr, k) for k in ("k1", "k2", "p1", "p2")})
+    d.update({k: getattr(intr, k) for k in (("k1", "k2", "k3", "k4") if intr.fisheye else ("k1", "k2", "p1", "p2"))})
     return d
 
 
@@ -82,19 +95,11 @@ def write_transforms(views: list[View], path: str | Path, world: str = "none", i
     return atomic_write_json(path, out)
 
 
-def confined(root: Path, rel: str, what: str) -> Path:
-    """``root / rel`` if it stays inside ``root``; else ``InputDataError``."""
-    if Path(rel).is_absolute():
-        raise InputDataError(f"{what}: absolute path {rel!r} refused; paths must be relative to {root}")
-    p = (root / rel).resolve()
-    if not p.is_relative_to(root.resolve()):
-        raise InputDataError(f"{what}: path {rel!r} leaves {root}; refused")
-    return p
-
-
-def _image_file(p: Path) -> Path:
-    """``p``, or ``p.png`` when ``p`` has no extension and does not exist (Blender-synthetic file paths)."""
-    return p.with_name(p.name + ".png") if not p.suffix and not p.exists() else p
+def _frame_image(root: Path, rel: str, where: str) -> Path:
+    """The image ``root / rel`` (``paths.inside``), or ``root / rel.png`` when ``rel`` has no extension and
+    does not exist (Blender-synthetic file paths)."""
+    p = inside(root, rel, where)
+    return inside(root, rel + ".png", where) if not p.suffix and not p.exists() else p
 
 
 def image_size(path: Path, what: str) -> tuple[int, int]:
@@ -116,7 +121,7 @@ def _blender_intrinsics(src: dict, image: Path, where: str) -> dict:
     if "w" in src and "h" in src:
         W, H = int(src["w"]), int(src["h"])
     else:
-        W, H = image_size(_image_file(image), where)
+        W, H = image_size(image, where)
     ax = float(src["camera_angle_x"])
     ay = float(src.get("camera_angle_y", 0.0))
     for name, a in (("camera_angle_x", ax), ("camera_angle_y", ay if "camera_angle_y" in src else 1.0)):
@@ -125,6 +130,33 @@ def _blender_intrinsics(src: dict, image: Path, where: str) -> dict:
     fl_x = 0.5 * W / math.tan(0.5 * ax)
     fl_y = 0.5 * H / math.tan(0.5 * ay) if "camera_angle_y" in src else fl_x
     return {"fl_x": fl_x, "fl_y": fl_y, "cx": W / 2.0, "cy": H / 2.0, "w": W, "h": H, **src}
+
+
+def _lens(src: dict, where: str) -> tuple[str, dict]:
+    """(photorecon camera model, its distortion coefficients) of a frame's merged intrinsics ``src``, from
+    ``camera_model`` (nerfstudio) or ``is_fisheye`` (instant-ngp); a model or a coefficient photorecon cannot
+    hold raises ``InputDataError``."""
+    name = src.get("camera_model")
+    if name is None:
+        name = "OPENCV_FISHEYE" if src.get("is_fisheye") else "OPENCV"
+    if not isinstance(name, str) or name.upper() not in PERSPECTIVE_MODELS + FISHEYE_MODELS:
+        raise InputDataError(f"{where}: camera_model {name!r} is not supported; photorecon reads perspective "
+                             f"cameras ({', '.join(PERSPECTIVE_MODELS)}) and {FISHEYE_MODELS[0]} (360-degree, "
+                             "stereo-panorama and other lens models: convert the images to one of these first)")
+    name = name.upper()
+    dist = {k: float(src.get(k, 0.0)) for k in _DIST}
+    held = ("k1", "k2", "k3", "k4") if name in FISHEYE_MODELS else ("k1", "k2", "p1", "p2")
+    extra = [f"{k}={dist[k]:g}" for k in _DIST if k not in held and dist[k] != 0.0]
+    if extra:
+        raise InputDataError(f"{where}: {name} camera with {', '.join(extra)}: photorecon's {name} holds only "
+                             f"{' '.join(held)} (a {'fisheye' if name in FISHEYE_MODELS else 'perspective'} lens); "
+                             "undistort the images or give camera_model "
+                             + ("OPENCV_FISHEYE with k1..k4" if name not in FISHEYE_MODELS else "OPENCV with k1 k2 p1 p2"))
+    if name in FISHEYE_MODELS:
+        return "OPENCV_FISHEYE", {k: dist[k] for k in held}
+    if any(dist[k] for k in held):
+        return "OPENCV", {k: dist[k] for k in held}
+    return "PINHOLE", {}
 
 
 def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
@@ -148,30 +180,28 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
                 world = next((k for k, M in NERF_WORLDS.items() if np.allclose(M[:3], A)), None)
                 if world is None:
                     raise InputDataError(f"{path}: applied_transform {A.tolist()} is not a known orientation")
-    root = path.parent
+    root = path.parent.absolute()
     views = []
     for i, fr in enumerate(data["frames"]):
         where = f"{path} frame {i}"
         try:
             src = {**{k: data[k] for k in _INTR_KEYS if k in data}, **{k: fr[k] for k in _INTR_KEYS if k in fr}}
             if "fl_x" not in src and "camera_angle_x" in src:
-                src = _blender_intrinsics(src, confined(root, str(fr["file_path"]), where), where)
+                src = _blender_intrinsics(src, _frame_image(root, str(fr["file_path"]), where), where)
             for k in ("fl_x", "cx", "cy", "w", "h"):
                 if k not in src:
                     raise InputDataError(f"{where}: missing intrinsics key {k!r} (give fl_x, cx, cy, w, h or "
                                          "camera_angle_x at the top level or in the frame)")
-            dist = {k: float(src.get(k, 0.0)) for k in ("k1", "k2", "p1", "p2")}
-            model = "OPENCV" if any(dist.values()) else "PINHOLE"
+            model, dist = _lens(src, where)
             intr = Intrinsics(int(src["w"]), int(src["h"]), float(src["fl_x"]), float(src.get("fl_y", src["fl_x"])),
                               float(opencv_from_colmap_pixels(float(src["cx"]))),
-                              float(opencv_from_colmap_pixels(float(src["cy"]))), model=model,
-                              **(dist if model == "OPENCV" else {}))
+                              float(opencv_from_colmap_pixels(float(src["cy"]))), model=model, **dist)
             T = opencv_from_nerf(np.asarray(fr["transform_matrix"], float), world)
             file_path = str(fr["file_path"])
         except (KeyError, TypeError, ValueError) as exc:
             raise InputDataError(f"{where}: {exc}") from None
-        img = _image_file(confined(root, file_path, where))
-        files = {key: str(confined(root, str(fr[key]), where)) if key in fr else None
+        img = _frame_image(root, file_path, where)
+        files = {key: str(inside(root, str(fr[key]), where)) if key in fr else None
                  for key in ("depth_file_path", "mask_path")}
         views.append(View(img.stem, intr, T, image_path=str(img), image_file=img.name,
                           depth_file=files["depth_file_path"], mask_file=files["mask_path"]))
@@ -193,7 +223,7 @@ def read_blender(path: str | Path) -> list[View]:
     for split, f in files:
         for v in read_transforms(f):
             if len(files) > 1:
-                rel = Path(v.image_path).resolve().relative_to(path.resolve()).as_posix()
+                rel = Path(v.image_path).relative_to(path.absolute()).as_posix()
                 v = dataclasses.replace(v, name=f"{split}_{v.name}", image_file=rel)
             views.append(v)
     return views

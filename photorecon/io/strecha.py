@@ -23,6 +23,7 @@ import numpy as np
 from ..cameras import Intrinsics, View, rigid
 from ..errors import BadArgumentError, InputDataError
 from .colmap_text import SparseModel
+from .paths import files_inside
 
 CAMERA_SUFFIX = ".camera"
 _SNAP_TOL = 1e-3
@@ -77,10 +78,10 @@ def read_strecha_camera(path: str | Path) -> View:
 
 
 def read_strecha(folder: str | Path) -> SparseModel:
-    """All ``*.camera`` files of ``folder`` (sorted by name) as a ``SparseModel`` with no points."""
+    """All ``*.camera`` files of ``folder`` (sorted by name) as a ``SparseModel`` with no points; a link to a
+    camera file outside ``folder`` raises ``InputDataError`` (``paths.files_inside``)."""
     folder = Path(folder)
-    files = sorted(p for p in folder.iterdir() if p.is_file() and p.name.endswith(CAMERA_SUFFIX)) \
-        if folder.is_dir() else []
+    files = [p for p in files_inside(folder, (CAMERA_SUFFIX,)) if p.name.endswith(CAMERA_SUFFIX)]
     if not files:
         raise InputDataError(f"{folder}: no Strecha *.camera files")
     views = [read_strecha_camera(p) for p in files]

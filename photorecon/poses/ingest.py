@@ -1,9 +1,15 @@
 """Ingest an image folder: find images (any letter case), decode them, apply EXIF orientation, read EXIF focal
 length priors, and copy them into a working folder (the user's folder is never written to). A video file
-gives every k-th frame instead."""
+gives every k-th frame instead. Given cameras (``--poses``) bring their images in through ``ingest_given``.
+
+Every photo is read from inside the folder the user named (``io.paths.inside``: a link to a file outside it
+is refused), under a name photorecon can name its files after (``io.paths.check_name_length``), and no two
+photos may be one view (``view_000.png`` and ``view_000.jpg``: ``io.paths.check_distinct_views``)."""
 from __future__ import annotations
 
+import hashlib
 import logging
+import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,17 +18,17 @@ import cv2
 import numpy as np
 
 from ..cameras import Intrinsics
-from ..errors import BadArgumentError, InputDataError, NoImagesError
+from ..errors import BadArgumentError, InputDataError, NoImagesError, SfMError
 from ..io.atomic import atomic_path
 from ..io.images import image_write_failed
+from ..io.paths import IMAGE_SUFFIXES, check_distinct_views, check_name_length, inside
 
 log = logging.getLogger("photorecon")
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
 # formats COLMAP's image reader cannot decode (pycolmap 4.x): ingested as PNG copies
 COLMAP_UNREADABLE = (".webp",)
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
-
+FLAT_STD = 2.0  # grey levels: a photo whose pixels vary less than this is one flat colour (nothing to match)
 
 
 @dataclass
@@ -41,13 +47,26 @@ class Ingest:
     renamed: dict[str, str] = field(default_factory=dict)  # working name -> photo's name (converted to PNG)
 
 
+def not_a_folder(path: str | Path) -> str:
+    """Why ``path``, given as the folder of photos, is none: a missing path, an image file (pass its folder)
+    or another file."""
+    path = Path(path)
+    if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES:
+        return f"{path}: is an image file, not a folder; pass the folder that holds the photos ({path.parent})"
+    if path.exists():
+        return (f"{path}: is not a folder of photos nor a video ({' '.join(VIDEO_SUFFIXES)}); pass the folder "
+                "that holds the photos")
+    return f"{path}: no such image folder (or video file)"
+
+
 def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
-    """(image files sorted by name, other files) in ``folder`` (not recursive)."""
+    """(image files sorted by name, other files) in ``folder`` (not recursive; hidden files skipped). An image
+    that is a link to a file outside ``folder`` raises ``InputDataError`` (``io.paths.inside``)."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise NoImagesError(f"{folder}: no such image folder")
+        raise NoImagesError(not_a_folder(folder))
     files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-    imgs = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    imgs = [inside(folder, p.name, str(folder)) for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
     return imgs, [p for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
 
 
@@ -90,10 +109,13 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
 
     folder, work = Path(folder), Path(work)
     paths, others = list_images(folder)
+    working = _working_names(paths, others)
+    for p in paths:
+        check_name_length(p)
+    check_distinct_views(((Path(working[p]).stem, p.name) for p in paths), str(folder))
     work.mkdir(parents=True, exist_ok=True)
-    out, bad, truncated = [], [], []
-    names = set()
-    all_names = {p.name.lower() for p in paths + others}
+    out, bad, truncated, flat = [], [], [], []
+    names, pictures = set(), set()
     renamed: dict[str, str] = {}  # working name -> the photo's name, for photos converted to PNG
     for p in paths:
         # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
@@ -107,10 +129,12 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
         if p.name.lower() in names:
             raise InputDataError(f"{folder}: two images named {p.name!r} differing only in letter case")
         names.add(p.name.lower())
-        name = p.name
-        if p.suffix.lower() in COLMAP_UNREADABLE:  # a PNG copy, named NAME.png (NAME.EXT.png if that is taken)
-            name = f"{p.stem}.png" if f"{p.stem}.png".lower() not in all_names else f"{p.name}.png"
-            all_names.add(name.lower())
+        sample = np.ascontiguousarray(img[::4, ::4])  # every 16th pixel: 7 ms for 12 MP, 1/8 of the whole
+        if float(cv2.meanStdDev(cv2.cvtColor(sample, cv2.COLOR_BGR2GRAY))[1][0, 0]) < FLAT_STD:
+            flat.append(p.name)
+        pictures.add(hashlib.blake2b(sample.data, digest_size=16).digest())
+        name = working[p]
+        if name != p.name:
             renamed[name] = p.name
         dst = work / name
         H, W = img.shape[:2]
@@ -135,7 +159,37 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
         found = f"{len(out)} readable image(s)" if out else "no readable image"
         need = f"; at least {min_images} needed" if out else ""  # none: the count needed says nothing more
         raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp){need}")
+    _check_content(folder, len(out), flat, len(pictures))
     return Ingest(out, skipped, renamed)
+
+
+def _working_names(paths: list[Path], others: list[Path]) -> dict[Path, str]:
+    """Each photo's name in the working folder: its own, or for a format COLMAP cannot read
+    (``COLMAP_UNREADABLE``) a PNG copy's, NAME.png (NAME.EXT.png when another file is named NAME.png)."""
+    taken = {p.name.lower() for p in paths + others}
+    working = {}
+    for p in paths:
+        name = p.name
+        if p.suffix.lower() in COLMAP_UNREADABLE:
+            name = f"{p.stem}.png" if f"{p.stem}.png".lower() not in taken else f"{p.name}.png"
+            taken.add(name.lower())
+        working[p] = name
+    return working
+
+
+def _check_content(folder: Path, n: int, flat: list[str], distinct: int) -> None:
+    """Refuse photos SfM cannot match, naming the likely cause: every one a single flat colour (black frames,
+    a lens cap, a blown exposure) is ``NoImagesError``; two or more that are all the same picture is
+    ``SfMError``. Some flat photos among good ones are only named in a warning."""
+    if flat and len(flat) == n:
+        raise NoImagesError(f"{folder}: all {n} photo(s) are a single flat colour (all black? a lens cap, a failed "
+                            "exposure?): SfM finds nothing to match in them; check the photos")
+    if flat:
+        log.warning("%d photo(s) are a single flat colour (nothing to match in them): %s", len(flat),
+                    ", ".join(flat[:20]) + (" ..." if len(flat) > 20 else ""))
+    if n >= 2 and distinct == 1:
+        raise SfMError(f"{folder}: all {n} photos are the same picture (copies of one file?); SfM needs photos "
+                       "of the scene from several viewpoints")
 
 
 def _png_copy(src: Path, dst: Path) -> tuple[int, int]:
@@ -174,6 +228,11 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
     video, work = Path(video), Path(work)
     if every < 1:
         raise BadArgumentError(f"--video-every: expected a positive frame step, got {every}")
+    if video.is_file() and video.stat().st_size == 0:
+        raise NoImagesError(f"{video}: the video file is empty (0 bytes)")
+    # FFmpeg prints its own line about a file it cannot read (``moov atom not found``): photorecon's one line
+    # says it; the level is read when OpenCV first opens a video, and a level the user set is kept
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     cap = cv2.VideoCapture(str(video))
     if not cap.isOpened():
         raise NoImagesError(f"{video}: cannot open the video (unsupported codec or not a video)")
@@ -199,3 +258,98 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
         raise NoImagesError(f"{video}: no frame could be decoded")
     log.info("video: %d of %d frames taken (every %d-th)", len(out), k, every)
     return Ingest(out)
+
+
+def ingest_given(model, images_dir: Path, out: Path, masks_dir: Path | None = None):
+    """Given cameras (``--poses``): copy each view's image from ``images_dir`` into OUT/images as NAME.png,
+    undistorted with OpenCV for a distorted camera (``cv2.undistort``; ``cv2.fisheye`` for OPENCV_FISHEYE),
+    and return the model with undistorted pinhole cameras. An image's mask in ``masks_dir`` (NAME.EXT.png or
+    NAME.png, 0 = ignore), else its alpha channel (RGBA, grey + alpha), becomes OUT/masks/NAME.png (255 where
+    > 0), undistorted like the image, so the depth and fusion stages use it as a mask.
+
+    Every image is found first, before anything is written: inside ``images_dir`` (``io.paths.inside``), under
+    a name photorecon can name its files after; a view's camera file names it (``image_file``), else NAME.EXT
+    for any image extension. Truncated or damaged images are skipped with a warning."""
+    from ..cameras import View
+    from ..io.colmap_text import SparseModel
+    from ..io.images import damaged_image, mask_file, read_alpha, read_image, read_mask, write_image
+    from ..layout import Layout
+
+    images_dir = Path(images_dir)
+    sources = {v.name: _given_image(images_dir, v) for v in model.views}
+    check_distinct_views(((Path(p.name).stem, str(p.relative_to(images_dir))) for p in sources.values()),
+                         str(images_dir))
+    layout = Layout(out)
+    img_out, mask_out = layout.images, layout.masks
+    img_out.mkdir(parents=True, exist_ok=True)
+    views, damaged = [], []
+    for v in model.views:
+        src = sources[v.name]
+        # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
+        why = damaged_image(src) if src.suffix.lower() in (".jpg", ".jpeg") else None
+        img = None
+        if not why:
+            try:
+                img = read_image(src)
+            except InputDataError:
+                why = damaged_image(src)
+                if not why:
+                    raise
+        if why:
+            log.warning("view %s: image %s is %s; view skipped", v.name, src, why)
+            damaged.append(v.name)
+            continue
+        if img.shape[:2] != (v.intrinsics.height, v.intrinsics.width):
+            raise InputDataError(f"view {v.name}: image {src} is {img.shape[1]}x{img.shape[0]}, camera is "
+                                 f"{v.intrinsics.width}x{v.intrinsics.height}")
+        user_mask = mask_file(masks_dir, src.name) if masks_dir else None
+        if user_mask is not None:
+            m = read_mask(user_mask, (img.shape[1], img.shape[0]), f"image {src.name}")
+        else:
+            alpha = read_alpha(src)
+            m = None if alpha is None else alpha > 0
+        mask = None if m is None else np.where(m, 255, 0).astype(np.uint8)
+        intr = v.intrinsics
+        if intr.has_distortion:
+            img = undistort_image(img, intr)
+            if mask is not None:  # same maps; outside the source image -> 0 (no data)
+                mask = np.where(undistort_image(mask, intr) >= 128, 255, 0).astype(np.uint8)
+            intr = intr.pinhole()
+        dst_name = Path(src.name).stem + ".png"
+        write_image(img_out / dst_name, img)
+        mask_path = mask_out / dst_name  # the output model names the view after its image's stem
+        if mask is not None:
+            mask_out.mkdir(exist_ok=True)
+            write_image(mask_path, mask)
+        else:
+            mask_path.unlink(missing_ok=True)  # a stale mask from an earlier run with other images
+        views.append(View(v.name, intr, v.cam_from_world, image_file=dst_name))
+    if damaged and len(views) < 2:
+        raise InputDataError(f"{images_dir}: {len(views)} usable image(s) for the given cameras"
+                             + (f" ({len(damaged)} truncated or damaged: {', '.join(damaged[:5])})" if damaged else "")
+                             + "; at least 2 needed")
+    return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
+
+
+def _given_image(images_dir: Path, view) -> Path:
+    """The image file of a given camera in ``images_dir``: the name its camera file gives, else the view's name
+    with any image extension (in any letter case); inside ``images_dir`` and with a usable name."""
+    name = view.image_file or view.name
+    src = inside(images_dir, name, f"view {view.name}")
+    if not src.is_file():
+        stem = Path(name).stem
+        cands = sorted(p for p in src.parent.iterdir() if p.stem == stem and p.suffix.lower() in IMAGE_SUFFIXES) \
+            if src.parent.is_dir() else []
+        if not cands:
+            raise InputDataError(f"view {view.name}: image {name} not found in {images_dir}")
+        src = inside(images_dir, str(cands[0].relative_to(images_dir)), f"view {view.name}")
+    check_name_length(src)
+    return src
+
+
+def undistort_image(img: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """``img`` taken through ``intr`` as its pinhole camera (same K) sees it: ``cv2.fisheye.undistortImage``
+    for an OPENCV_FISHEYE camera, else ``cv2.undistort`` (k1 k2 p1 p2). Bilinear; outside the image = 0."""
+    if intr.fisheye:
+        return cv2.fisheye.undistortImage(img, intr.K, intr.dist_coeffs.reshape(4, 1), Knew=intr.K)
+    return cv2.undistort(img, intr.K, intr.dist_coeffs, None, intr.K)

@@ -28,7 +28,7 @@ from ..cameras import View
 from ..conventions import colmap_from_intrinsics
 from ..errors import BadArgumentError, InputDataError, OutputError
 from ..io.colmap_text import SparseModel
-from ..io.dataset import IMAGE_SUFFIXES
+from ..io.paths import IMAGE_SUFFIXES, inside
 
 log = logging.getLogger("photorecon")
 
@@ -69,16 +69,10 @@ def find_image(images_dir: Path, view: View) -> Path:
     if view.image_path and Path(view.image_path).is_file():
         return Path(view.image_path)
     name = view.image_file or view.name
-    p = images_dir / name
-    if p.is_file():
-        return p
-    p2 = images_dir / Path(name).name
-    if p2.is_file():
-        return p2
-    for suf in IMAGE_SUFFIXES + tuple(s.upper() for s in IMAGE_SUFFIXES):
-        q = images_dir / (view.name + suf)
-        if q.is_file():
-            return q
+    for cand in [name, Path(name).name] + [view.name + suf for suf in IMAGE_SUFFIXES + tuple(s.upper() for s in IMAGE_SUFFIXES)]:
+        p = inside(images_dir, cand, f"view {view.name}")  # the one path rule: no file outside images_dir
+        if p.is_file():
+            return p
     raise InputDataError(f"view {view.name}: image {name} not found in {images_dir}")
 
 

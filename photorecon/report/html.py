@@ -31,6 +31,7 @@ import trimesh
 from ..cameras import View, invert_rigid
 from ..errors import EmptyMeshError
 from ..io.atomic import atomic_write_text
+from ..io.paths import inside
 from ..layout import Layout
 
 log = logging.getLogger("photorecon")
@@ -202,7 +203,7 @@ def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str
     cameras = result_cameras(folder)
     images = {}
     for v in cameras:
-        p = Layout(folder).image(v.image_file or v.name)
+        p = inside(Layout(folder).images, v.image_file or v.name, f"view {v.name}")
         if p.is_file():
             images[v.name] = p
     return mesh, cameras, images
