@@ -27,6 +27,7 @@ from photorecon.io.colmap_text import SparseModel, read_colmap_text, write_colma
 from photorecon.io.dataset import read_model
 from photorecon.io.formats import write_llff, write_neus
 from photorecon.io.nerf import read_transforms, write_blender, write_transforms
+from photorecon.poses.ingest import list_images
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 40, 30
@@ -210,14 +211,6 @@ def _masks_option_scene(tmp, attack):
     return ["reconstruct", images, "--poses", tmp / "in" / "model", "--masks", masks]
 
 
-def _photos_scene(tmp, attack):
-    photos = tmp / "in" / "photos"
-    for i in range(3):
-        _png(photos / f"p{i}.png", i)
-    _escape(attack, photos, tmp / "outside" / "x.png", photos / "x.png")
-    return ["sfm", photos]
-
-
 READERS = {
     "colmap-text": lambda t, a: _colmap_scene(t, a),
     "colmap-bin": lambda t, a: _colmap_scene(t, a, binary=True),
@@ -233,10 +226,9 @@ READERS = {
     "dataset-depth-link": lambda t, a: _dataset_files_scene(t, a, "depth"),
     "dataset-mask-link": lambda t, a: _dataset_files_scene(t, a, "masks"),
     "masks-option": _masks_option_scene,
-    "photo-folder": _photos_scene,
 }
 CASES = [(r, a) for r in READERS for a in ("dotdot", "absolute", "symlink")
-         if a == "symlink" or r not in ("neus", "neus-images", "llff", "strecha", "photo-folder", "dataset-depth-link",
+         if a == "symlink" or r not in ("neus", "neus-images", "llff", "strecha", "dataset-depth-link",
                                         "dataset-mask-link", "masks-option")]
 
 
@@ -251,6 +243,19 @@ def test_no_reader_reads_a_file_outside_the_folder_it_was_given(tmp_path, reader
     assert "refused" in line and ("outside" in line or "leaves" in line or "absolute" in line), line
     assert tree_hash(tmp_path) == before
     assert not out.exists()  # nothing copied, no output left
+
+
+def test_a_photo_folder_of_links_to_photos_elsewhere_is_read(tmp_path):
+    """A folder the user made of links (a subset of a larger capture) names no file itself: its photos are read
+    where the links point, and nothing there is changed."""
+    photos = tmp_path / "in" / "photos"
+    for i in range(3):
+        _png(tmp_path / "all" / f"p{i}.png", i)
+        photos.mkdir(parents=True, exist_ok=True)
+        (photos / f"p{i}.png").symlink_to(tmp_path / "all" / f"p{i}.png")
+    imgs, other = list_images(photos)
+    assert [p.name for p in imgs] == ["p0.png", "p1.png", "p2.png"] and other == []
+    assert all(p.resolve().parent == (tmp_path / "all").resolve() for p in imgs)
 
 
 def test_a_name_inside_the_folder_through_dotdot_or_a_link_is_read(tmp_path):

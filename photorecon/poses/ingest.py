@@ -2,8 +2,8 @@
 length priors, and copy them into a working folder (the user's folder is never written to). A video file
 gives every k-th frame instead. Given cameras (``--poses``) bring their images in through ``ingest_given``.
 
-Every photo is read from inside the folder the user named (``io.paths.inside``: a link to a file outside it
-is refused), under a name photorecon can name its files after (``io.paths.check_name_length``), and no two
+Photos given by camera files (``--poses``) are read from inside the image folder (``io.paths.inside``); every
+photo needs a name photorecon can name its files after (``io.paths.check_name_length``), and no two
 photos may be one view (``view_000.png`` and ``view_000.jpg``: ``io.paths.check_distinct_views``)."""
 from __future__ import annotations
 
@@ -60,13 +60,14 @@ def not_a_folder(path: str | Path) -> str:
 
 
 def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
-    """(image files sorted by name, other files) in ``folder`` (not recursive; hidden files skipped). An image
-    that is a link to a file outside ``folder`` raises ``InputDataError`` (``io.paths.inside``)."""
+    """(image files sorted by name, other files) in ``folder`` (not recursive; hidden files skipped). The photos
+    are the folder's own entries, named by nobody but the user who made it: a link to a photo elsewhere (a common
+    way to pick a subset) is read. Names written in camera or dataset files go through ``io.paths.inside``."""
     folder = Path(folder)
     if not folder.is_dir():
         raise NoImagesError(not_a_folder(folder))
     files = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
-    imgs = [inside(folder, p.name, str(folder)) for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
+    imgs = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES]
     return imgs, [p for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
 
 
