@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import platform
 import shutil
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import cv2
@@ -49,6 +49,7 @@ from .layout import Layout
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
 from .mesh.texture import TextureConfig
+from .fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -65,6 +66,9 @@ class ReconstructConfig:
     masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or NAME.EXT.png at the image's size, 0 = ignore the pixel (default: the images' alpha channel)", "metavar": "DIR"})
     texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos (OUT/textured/)"})
 
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+
 
 @dataclass
 class StageConfigs:
@@ -77,6 +81,10 @@ class StageConfigs:
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
+
+    def __post_init__(self):
+        for f in fields(self):  # each stage's config of its own class (each checked its fields when built)
+            expect_config(getattr(self, f.name), f.default_factory().__class__, f"StageConfigs.{f.name}")
 
 
 @dataclass
@@ -201,7 +209,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     from .poses.ingest import VIDEO_SUFFIXES
     from .mesh import parse_formats
 
-    cfgs = cfgs or StageConfigs()
+    cfgs = expect_config(cfgs, StageConfigs, "cfgs")
     run = cfgs.run
     images = Path(images)
     is_video = images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES
@@ -210,10 +218,6 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     if is_video and run.poses:
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
-    if run.texture:
-        from .mesh.texture import check_config
-
-        check_config(cfgs.texture)  # a bad --atlas-size fails before anything is written
     if run.depth != "mvs" and not Path(run.depth).is_dir():
         raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
     if run.depth_model:

@@ -15,6 +15,7 @@ import trimesh
 
 from ..cameras import View
 from ..errors import BadArgumentError, EmptyMeshError
+from ..fields import expect_config
 from ..resources import release_memory
 from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
                       tsdf_fuse_chunked)
@@ -37,6 +38,7 @@ def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray 
          dataset=None, work_dir=None) -> trimesh.Trimesh:
     """Fuse depth frames into one mesh with ``cfg.mesher``. TSDF runs in chunks (``tsdf_fuse_chunked``, which
     reads the depth maps from ``dataset``) when ``cfg.chunk_voxels`` is set or ``executor`` is a distributed one."""
+    cfg = expect_config(cfg, FusionConfig, "cfg")
     if cfg.mesher == "tsdf" and not cfg.watertight:
         if dataset is not None and (cfg.chunk_voxels or getattr(executor, "distributed", False)):
             return tsdf_fuse_chunked(dataset, frames, cfg, sparse_points, executor, work_dir)
@@ -62,7 +64,8 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     from ..mesh import CleanConfig
     from ..report.preview import render_preview
 
-    cfg = cfg or FusionConfig()
+    cfg = expect_config(cfg, FusionConfig, "cfg")
+    clean_cfg = expect_config(clean_cfg, CleanConfig, "clean_cfg")
     ds = Dataset.open(root, depth_dir, masks_dir)
     frames = load_frames(ds, cfg)
     from ..distributed import executor

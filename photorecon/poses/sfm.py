@@ -32,6 +32,7 @@ from ..io.space import check_space
 from ..layout import Layout
 from ..stages import Stages, atomic_dir, fingerprint, replace_dir
 from .sfm_inputs import _exif, _undistort_masks, _upscaled_copies, check_sfm_masks, write_colmap_masks
+from ..fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -79,6 +80,9 @@ class SfMConfig:
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)", "range": (1, 4096), "also": (-1,)})
     seed: int = field(default=0, metadata={"help": "random seed of the mapping", "range": (0, 2**31 - 1)})
     video_every: int = field(default=10, metadata={"help": "when IMAGES is a video file: take every k-th frame", "range": (1, 1_000_000)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 def _quiet(pycolmap) -> None:
@@ -250,28 +254,32 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.threads
         mopt.guided_matching = guided
+        vopt = pycolmap.TwoViewGeometryOptions()
+        vopt.ransac.random_seed = cfg.seed  # each pair's RANSAC seeded: the same inliers whichever thread runs it
         if matching == "exhaustive":
-            pycolmap.match_exhaustive(str(tmp), matching_options=mopt, device=pycolmap.Device.cpu)
+            pycolmap.match_exhaustive(str(tmp), matching_options=mopt, verification_options=vopt,
+                                      device=pycolmap.Device.cpu)
         elif matching == "spatial":
             popt = pycolmap.SpatialPairingOptions()
             popt.max_num_neighbors = cfg.spatial_neighbors
             popt.max_distance = cfg.spatial_max_distance
             popt.ignore_z = cfg.spatial_ignore_z
-            pycolmap.match_spatial(str(tmp), matching_options=mopt, pairing_options=popt, device=pycolmap.Device.cpu)
+            pycolmap.match_spatial(str(tmp), matching_options=mopt, pairing_options=popt, verification_options=vopt,
+                                   device=pycolmap.Device.cpu)
         elif matching == "sequential":
             popt = pycolmap.SequentialPairingOptions()
             popt.overlap = cfg.sequential_overlap
             popt.quadratic_overlap = True
             pycolmap.match_sequential(str(tmp), matching_options=mopt, pairing_options=popt,
-                                      device=pycolmap.Device.cpu)
+                                      verification_options=vopt, device=pycolmap.Device.cpu)
             if cfg.sequential_loops:
-                _match_keyframes(tmp, max(1, cfg.sequential_overlap), mopt)
+                _match_keyframes(tmp, max(1, cfg.sequential_overlap), mopt, vopt)
         else:
             raise BadArgumentError(f"--matching: unknown choice {matching!r}")
     return database
 
 
-def _match_keyframes(database: Path, every: int, mopt) -> int:
+def _match_keyframes(database: Path, every: int, mopt, vopt=None) -> int:
     """Loop closure for sequential matching: every ``every``-th image in name order (sequential's order) matched
     with every other one not already matched with it. Returns the number of pairs added."""
     pycolmap = _pycolmap()
@@ -290,6 +298,7 @@ def _match_keyframes(database: Path, every: int, mopt) -> int:
         popt = pycolmap.ImportedPairingOptions()
         popt.match_list_path = f.name
         pycolmap.match_image_pairs(str(database), matching_options=mopt, pairing_options=popt,
+                                   verification_options=vopt or pycolmap.TwoViewGeometryOptions(),
                                    device=pycolmap.Device.cpu)
     finally:
         Path(f.name).unlink(missing_ok=True)
@@ -472,7 +481,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     from .ingest import IngestedImage
 
     pycolmap = _pycolmap()
-    cfg = cfg or SfMConfig()
+    cfg = expect_config(cfg, SfMConfig, "cfg")
     if not 0 <= cfg.min_registered <= 1:
         raise BadArgumentError(f"--min-registered: expected a fraction of the images, 0 to 1, got {cfg.min_registered:g}")
     _quiet(pycolmap)
@@ -525,7 +534,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         pairing = {"sequential": {"overlap": cfg.sequential_overlap, "loops": cfg.sequential_loops},
                    "spatial": {"neighbors": cfg.spatial_neighbors, "max_distance": cfg.spatial_max_distance,
                                "ignore_z": cfg.spatial_ignore_z}}.get(matching)
-        stages.run(f"matching{suffix}", {"matching": matching, "pairing": pairing},
+        stages.run(f"matching{suffix}", {"matching": matching, "pairing": pairing, "seed": cfg.seed},
                    lambda: match(features, database, matching, cfg, guided), outputs=[database])
         stages.run(f"mapping{suffix}", {"mapper": mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
                    lambda: map(database, work / "images", model_dir, cfg, fixed, mapper), outputs=[model_dir])
