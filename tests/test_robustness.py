@@ -743,3 +743,20 @@ def _triangles(mesh) -> np.ndarray:
     order = np.lexsort(tri.transpose(2, 0, 1)[::-1], axis=-1)  # each triangle's corners by x, then y, then z
     tri = np.take_along_axis(tri, order[..., None], axis=1).reshape(len(tri), 9)
     return tri[np.lexsort(tri.T[::-1])]
+
+
+@pytest.mark.parametrize("side", ["--mesh", "--gt"])
+def test_eval_of_a_mesh_with_nan_vertices_names_them_and_exits_3(tmp_path, capsys, side):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    v = sphere.vertices.copy()
+    v[[17, 30, 31]] = np.nan
+    v[40, 2] = np.inf
+    trimesh.Trimesh(v, sphere.faces, process=False).export(tmp_path / "bad.ply")
+    sphere.export(tmp_path / "good.ply")
+    files = {"--mesh": tmp_path / "good.ply", "--gt": tmp_path / "good.ply", side: tmp_path / "bad.ply"}
+    assert main(["eval", "--mesh", str(files["--mesh"]), "--gt", str(files["--gt"])]) == 3
+    line = _error_line(capsys.readouterr().err)
+    assert "Traceback" not in line and "bad.ply" in line
+    assert f"4 of {len(v)} vertices have NaN or infinite coordinates (the first: index 17)" in line
