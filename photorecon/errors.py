@@ -3,8 +3,10 @@
 Every message says what was expected, what was found, and (where it helps) what to do.
 
 Exit codes of ``photorecon``: 0 done; 1 other photorecon error; 2 bad argument or value (also every
-command-line parse error); 3 input data; 4 no images; 5 SfM; 6 no depth; 7 empty mesh; 8 output location;
-9 texture; 10 an unexpected failure (a bug: ``-v`` shows the traceback); 130 interrupted (Ctrl-C, SIGINT);
+command-line parse error); 3 input data; 4 no images; 5 SfM; 6 no depth (also: too little depth confirmed for a
+usable mesh); 7 empty mesh; 8 output location; 9 texture; 10 an unexpected failure (a bug: ``-v`` shows the
+traceback); 11 out of memory (a stage needs more than the free memory or the ``ulimit -v`` allows: the line
+names the stage and its need; temporaries are removed); 130 interrupted (Ctrl-C, SIGINT);
 143 terminated (SIGTERM); 141 stdout closed by its reader (``| head``), silently. An interrupted run keeps no
 incomplete output and resumes when run again.
 """
@@ -86,6 +88,43 @@ class TextureError(PhotoreconError):
     """Texturing is impossible: no view sees the mesh, or the atlas does not fit in memory or in its size."""
 
     exit_code = 9
+
+
+class OutOfMemoryError(PhotoreconError):
+    """A stage needs more memory than there is (the free memory, or the process's address-space limit,
+    ``ulimit -v``): found before the stage starts where its need can be estimated, else when an allocation
+    fails. The message names the stage and the memory it needs: ``out of memory in STAGE: needs about N GB
+    (M GB available); try --quality preview or --max-size``."""
+
+    exit_code = 11
+
+
+MEMORY_HINT = "try --quality preview or --max-size"
+
+
+def out_of_memory(stage: str, need: float | None = None, available: float | None = None) -> OutOfMemoryError:
+    """The ``OutOfMemoryError`` of ``stage``: ``need`` and ``available`` in bytes (``need`` None: the stage's
+    need is not known, only that it was more than was available)."""
+    def size(b):
+        return f"{b / 2**30:.1f} GB" if b >= 0.1 * 2**30 else f"{max(1, round(b / 2**20))} MB"
+
+    if need is not None:
+        what = f"needs about {size(need)}" + (f" ({size(available)} available)" if available is not None else "")
+    else:
+        what = f"needs more than the {size(available)} available" if available is not None else "needs more memory"
+    return OutOfMemoryError(f"out of memory in {stage}: {what}; {MEMORY_HINT}")
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """``exc`` is an allocation failure: Python's ``MemoryError`` (numpy's too, and pybind11's translation of
+    C++'s ``std::bad_alloc`` in pycolmap and Open3D), or a native library's error saying so."""
+    if isinstance(exc, MemoryError):
+        return True
+    if not isinstance(exc, RuntimeError):
+        return False
+    text = str(exc).lower()
+    return any(k in text for k in ("bad_alloc", "out of memory", "cannot allocate memory", "failed to allocate",
+                                   "memory allocation failed", "malloc"))
 
 
 class InternalError(PhotoreconError):

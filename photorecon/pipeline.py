@@ -46,6 +46,7 @@ from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
 from .poses.scale import ScaleConfig
 from .poses.sfm import SfMConfig
 from .layout import Layout
+from .resources import check_memory
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
 from .mesh.texture import TextureConfig
@@ -173,6 +174,23 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
                              + (f" ({len(damaged)} truncated or damaged: {', '.join(damaged[:5])})" if damaged else "")
                              + "; at least 2 needed")
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
+
+
+# The depth stage's memory per working pixel of one reference view: its maps and costs, plus each source
+# image (50 views at 1600x1067, 8 sources: 863 MB process peak, about 500 MB above the process's own)
+DEPTH_BYTES_PER_PIXEL = 100
+DEPTH_BYTES_PER_SOURCE_PIXEL = 25
+
+
+def depth_memory(views, cfg: MVSConfig) -> float:
+    """Bytes the MVS depth stage needs at once (about): the largest view at the working size, with its
+    sources."""
+    px = 0.0
+    for v in views:
+        w, h = v.intrinsics.width, v.intrinsics.height
+        scale = min(1.0, cfg.max_size / max(w, h)) if cfg.max_size else 1.0
+        px = max(px, w * h * scale * scale)
+    return px * (DEPTH_BYTES_PER_PIXEL + DEPTH_BYTES_PER_SOURCE_PIXEL * cfg.n_sources)
 
 
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
@@ -303,6 +321,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                                    work / "depth")
                     info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
                 elif source == "mvs":
+                    check_memory("depth (MVS)", depth_memory(ds.views, cfgs.mvs))
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"],

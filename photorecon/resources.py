@@ -8,15 +8,44 @@ from pathlib import Path
 
 
 def available_bytes() -> int:
-    """Memory the system can still give (Linux MemAvailable; 4 GB where unknown)."""
+    """Memory this process can still get: the smaller of what the system can give (Linux MemAvailable; 4 GB
+    where unknown) and the headroom under the process's address-space limit (``ulimit -v``, RLIMIT_AS: the
+    limit less the address space in use)."""
+    free = 4 << 30
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    free = int(line.split()[1]) * 1024
+                    break
     except OSError:
         pass
-    return 4 << 30
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit != resource.RLIM_INFINITY:
+        free = min(free, max(0, limit - _address_space()))
+    return free
+
+
+def _address_space() -> int:
+    """The process's virtual memory size (VmSize), bytes; 0 where unknown."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmSize:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def check_memory(stage: str, need: float) -> None:
+    """Raise ``OutOfMemoryError`` (``out of memory in STAGE: needs about N GB ...``) when a stage's estimated
+    ``need`` (bytes) exceeds ``available_bytes()``: before the stage starts, so no native library runs out of
+    memory halfway (which aborts or crashes the process, leaving its temporary files)."""
+    from .errors import out_of_memory
+
+    avail = available_bytes()
+    if need > avail:
+        raise out_of_memory(stage, need, avail)
 
 
 def reset_peak() -> bool:

@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable
 
-from .errors import OutputError
+from .errors import OutputError, is_out_of_memory, out_of_memory
 from .io.atomic import atomic_write_json
 from .io.space import is_no_space, no_space_error
 from .resources import measure
@@ -125,7 +125,15 @@ class Stages:
             return self.info[name]
         marker.unlink(missing_ok=True)
         with measure(self.stats, name):
-            result = fn()
+            try:
+                result = fn()
+            except (MemoryError, RuntimeError) as exc:  # an allocation that failed: one line naming the stage
+                if not is_out_of_memory(exc):
+                    raise
+                from .resources import available_bytes, release_memory
+
+                release_memory()
+                raise out_of_memory(name, None, available_bytes()) from None
         self.info[name] = result if isinstance(result, dict) else {}
         for p in map(Path, outputs):
             if p not in optional and not _present(p):

@@ -1,6 +1,6 @@
 """Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns every failure
 into one line on stderr and an exit code: a ``PhotoreconError`` its class's code, a parse error or an
-out-of-range value 2, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
+out-of-range value 2, a failed allocation ``OutOfMemoryError``'s 11, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
 SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes); stdout closed by its reader 141."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import sys
 
 from .. import __version__
 from .config import COMMANDS, Parser, apply_settings_file
-from ..errors import InternalError, PhotoreconError, from_os_error
+from ..errors import InternalError, PhotoreconError, from_os_error, is_out_of_memory, out_of_memory
 
 log = logging.getLogger("photorecon")
 
@@ -144,9 +144,11 @@ def _main(argv: list[str] | None) -> int:
             import traceback
 
             traceback.print_exc()
-        what = ("out of memory (a smaller working size needs less: --quality preview)" if isinstance(exc, MemoryError)
-                else f"{type(exc).__name__}: {_one_line(exc, 300)}")
-        print(f"{prog}: error: {what} (run with -v for details)", file=sys.stderr)
+        if is_out_of_memory(exc):  # outside a stage (which names itself)
+            err = out_of_memory(args.command)
+            print(f"{prog}: error: {_one_line(err)}", file=sys.stderr)
+            return err.exit_code
+        print(f"{prog}: error: {type(exc).__name__}: {_one_line(exc, 300)} (run with -v for details)", file=sys.stderr)
         return InternalError.exit_code
 
 
