@@ -66,6 +66,7 @@ class ReconstructConfig:
     formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write, comma-separated: ply, obj, glb", "metavar": "LIST"})
     masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or NAME.EXT.png at the image's size, 0 = ignore the pixel (default: the images' alpha channel)", "metavar": "DIR"})
     texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos (OUT/textured/)"})
+    min_depth_fraction: float = field(default=0.02, metadata={"help": "MVS: fail (exit 6) when on average less than this fraction of a view's pixels gets a confirmed depth: a mesh from so little depth is a fragment (0 = off; lower it for a subject that fills only a small part of the photos)", "range": (0.0, 1.0)})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
@@ -191,6 +192,26 @@ def depth_memory(views, cfg: MVSConfig) -> float:
         scale = min(1.0, cfg.max_size / max(w, h)) if cfg.max_size else 1.0
         px = max(px, w * h * scale * scale)
     return px * (DEPTH_BYTES_PER_PIXEL + DEPTH_BYTES_PER_SOURCE_PIXEL * cfg.n_sources)
+
+
+def confirmed_fraction(per_view: dict, n_views: int) -> float:
+    """The mean fraction of the views' pixels with a confirmed depth (a view without depth counts 0)."""
+    return round(sum(v["valid_fraction"] for v in per_view.values()) / max(n_views, 1), 5)
+
+
+def check_enough_depth(mean: float, per_view: dict, n_views: int, run: ReconstructConfig, mvs: MVSConfig) -> None:
+    """``NoDepthError`` when the depth maps confirm less than ``run.min_depth_fraction`` of the pixels on
+    average: the mesh would be a fragment (a few hundred faces), not a result."""
+    if mean >= run.min_depth_fraction:
+        return
+    best = max((v["valid_fraction"] for v in per_view.values()), default=0.0)
+    hint = ("--mvs sweep is a rough preview; use --mvs patchmatch (the default)" if mvs.method == "sweep" else
+            "check that the photos overlap and the cameras are right (photorecon view OUT); lower "
+            "--min-consistent or --min-confidence")
+    raise NoDepthError(f"depth: only {100 * mean:.1f}% of the pixels of the {n_views} views have a confirmed depth "
+                       f"(the best view {100 * best:.1f}%; at least {100 * run.min_depth_fraction:g}% needed): too "
+                       f"little for a mesh; {hint}; a subject that fills only a small part of the photos: lower "
+                       "--min-depth-fraction")
 
 
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
@@ -322,10 +343,16 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                     info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
                 elif source == "mvs":
                     check_memory("depth (MVS)", depth_memory(ds.views, cfgs.mvs))
+                    if cfgs.mvs.method == "sweep":
+                        log.warning("depth: --mvs sweep is a rough preview (fronto-parallel planes): its mesh is far "
+                                    "less complete and accurate than --mvs patchmatch's; --quality preview is the "
+                                    "quick look that keeps PatchMatch")
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"],
-                            "triangulation_seconds": rep["triangulation_seconds"]}
+                            "triangulation_seconds": rep["triangulation_seconds"],
+                            "confirmed_fraction": confirmed_fraction(rep["per_view"], len(ds.views))}
+                    check_enough_depth(info["confirmed_fraction"], rep["per_view"], len(ds.views), run, cfgs.mvs)
                     written = sorted(rep["per_view"])
                 else:
                     # depth maps in the given cameras' units scale with them (--marker-size, GPS)

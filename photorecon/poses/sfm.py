@@ -206,7 +206,51 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
                                       extraction_options=ext, device=pycolmap.Device.cpu)
             if s > 1:
                 _downscale_features(tmp, cam["images"], s, *cam["size"], cam["params"])
+        _number_images_by_name(tmp)
     return database
+
+
+def _number_images_by_name(database: Path) -> None:
+    """Renumber the images of a features database in name order (with their frames and pose priors): COLMAP's
+    extraction threads number them in the order they finish, and matching and mapping follow the numbers, so
+    the same photos would give a slightly different model each run (poses apart by 1e-14 and the mesh by 0.1%
+    of its faces on 16 synthetic views). A database with several images per frame (a rig) is left as it is."""
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(database))
+    try:
+        images = sorted(db.read_all_images(), key=lambda im: im.name)
+        frames = {f.frame_id: f for f in db.read_all_frames()}
+        if [im.image_id for im in images] == list(range(1, len(images) + 1)) or any(
+                len(list(f.data_ids)) != 1 for f in frames.values()):
+            return
+        cameras, rigs, priors = db.read_all_cameras(), db.read_all_rigs(), db.read_all_pose_priors()
+        data = [(im, db.read_keypoints(im.image_id), db.read_descriptors(im.image_id)) for im in images]
+    finally:
+        db.close()
+    new_id = {im.image_id: k for k, (im, _, _) in enumerate(data, 1)}
+    with atomic_path(database) as tmp:
+        new = pycolmap.Database.open(str(tmp))
+        try:
+            for c in cameras:
+                new.write_camera(c, use_camera_id=True)
+            for r in rigs:
+                new.write_rig(r, use_rig_id=True)
+            for k, (im, keypoints, descriptors) in enumerate(data, 1):
+                frame = pycolmap.Frame()
+                frame.frame_id, frame.rig_id = k, frames[im.frame_id].rig_id
+                frame.add_data_id(pycolmap.data_t(sensor_id=pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA,
+                                                                              id=im.camera_id), id=k))
+                new.write_frame(frame, use_frame_id=True)
+                image = pycolmap.Image(name=im.name, camera_id=im.camera_id, image_id=k)
+                image.frame_id = k
+                new.write_image(image, use_image_id=True)
+                new.write_keypoints(k, keypoints)
+                new.write_descriptors(k, descriptors)
+            for p in priors:
+                p.corr_data_id = pycolmap.data_t(sensor_id=p.corr_data_id.sensor_id, id=new_id[p.corr_data_id.id])
+                new.write_pose_prior(p)
+        finally:
+            new.close()
 
 
 # SIFT extraction's memory per thread and working pixel (COLMAP's CPU SIFT, affine shapes, first octave
