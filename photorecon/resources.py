@@ -37,6 +37,41 @@ def _address_space() -> int:
     return 0
 
 
+# The address space the native libraries take once loaded (pycolmap, Open3D, numba and their dependencies):
+# 1.83 GB measured with pycolmap 4.2, Open3D 0.20 and numba 0.61
+LIBRARIES_ADDRESS_SPACE = 1.9 * 2**30
+_M_ARENA_MAX = -8  # glibc's mallopt parameter
+
+
+def fit_address_space() -> None:
+    """Under an address-space limit (``ulimit -v``, RLIMIT_AS; nothing to do without one): cap glibc's malloc
+    arenas at 2 (each thread's arena reserves 64 MB of address space, a native library's threads would take
+    their share of the limit), and load the native libraries now, before any work, so that a limit too small
+    for them fails here with ``OutOfMemoryError`` instead of halfway through a stage."""
+    import importlib
+
+    from .errors import is_out_of_memory, out_of_memory
+
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if limit == resource.RLIM_INFINITY:
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").mallopt(_M_ARENA_MAX, 2)
+    except (OSError, AttributeError):
+        pass
+    for name in ("cv2", "pycolmap", "open3d", "numba"):  # cv2 first: see poses.sfm._pycolmap
+        try:
+            importlib.import_module(name)
+        except (ImportError, OSError) as exc:
+            if not is_out_of_memory(exc):
+                raise
+            raise out_of_memory("start-up", LIBRARIES_ADDRESS_SPACE, limit,
+                                hint="the libraries alone need that much address space; raise the limit "
+                                     "(ulimit -v)") from None
+
+
 def check_memory(stage: str, need: float) -> None:
     """Raise ``OutOfMemoryError`` (``out of memory in STAGE: needs about N GB ...``) when a stage's estimated
     ``need`` (bytes) exceeds ``available_bytes()``: before the stage starts, so no native library runs out of

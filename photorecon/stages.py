@@ -127,7 +127,7 @@ class Stages:
         with measure(self.stats, name):
             try:
                 result = fn()
-            except (MemoryError, RuntimeError) as exc:  # an allocation that failed: one line naming the stage
+            except (MemoryError, RuntimeError, OSError, ImportError) as exc:  # an allocation that failed
                 if not is_out_of_memory(exc):
                     raise
                 from .resources import available_bytes, release_memory

@@ -111,3 +111,19 @@ def test_other_runtime_errors_stay_unexpected_errors(blob_small, tmp_path, monke
             "--depth", str(blob_small / "depth"), "-o", str(tmp_path / "out")]
     assert main(argv) == 10
     assert "RuntimeError: index out of range" in capsys.readouterr().err
+
+
+def test_an_address_space_limit_too_small_for_the_libraries_fails_at_start_up(blob_small, tmp_path):
+    """``ulimit -v`` 1.5 GB: the native libraries alone need more address space; one line and exit 11 before any
+    work, instead of an OpenBLAS abort halfway through matching (exit 1, its temporary database left behind)."""
+    limit = 1536 << 20
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    run = subprocess.run([sys.executable, "-m", "photorecon", "reconstruct", str(blob_small / "images"), "-o",
+                          str(out)], capture_output=True, text=True, env=env, timeout=120, cwd=ROOT,
+                         preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit)))
+    assert run.returncode == 11, run.stderr
+    line = _line(run.stderr)
+    assert line.startswith("photorecon reconstruct: error: out of memory in start-up: needs about 1.9 GB (1.5 GB")
+    assert line.endswith("raise the limit (ulimit -v)")
+    assert not out.exists()

@@ -120,6 +120,9 @@ def _main(argv: list[str] | None) -> int:
         if getattr(args, "config", None):
             apply_settings_file(parser.command_parser(args.command), args, args.config)
         _install_signal_handlers()  # again, after the native libraries' own
+        from ..resources import fit_address_space
+
+        fit_address_space()  # under ulimit -v: fewer malloc arenas; the libraries loaded (or exit 11) first
         return int(args.func(args) or 0)
     except PhotoreconError as exc:
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
