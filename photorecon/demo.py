@@ -34,15 +34,13 @@ class DemoConfig:
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
-# what the demos write in their folder (--overwrite never replaces a file of these names photorecon did not write)
-DEMO_NAMES = ("scene", "reconstruction", "demo.json", "tsdf.ply", "watertight.ply", "side_by_side.png")
 
 
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bool = False) -> dict:
     from .io.output import output_folder
 
     cfg = cfg or DemoConfig()
-    with output_folder(out, overwrite, writes=DEMO_NAMES) as out:
+    with output_folder(out, overwrite, command="demo") as out:
         return _run_demo(out, cfg)
 
 
@@ -103,7 +101,7 @@ def run_bunny_demo(out: str | Path, cfg: DemoConfig | None = None, overwrite: bo
     from .io.output import output_folder
 
     cfg = cfg or DemoConfig(scene="bunny")
-    with output_folder(out, overwrite, writes=DEMO_NAMES) as out:
+    with output_folder(out, overwrite, command="demo") as out:
         return _run_bunny_demo(out, cfg)
 
 

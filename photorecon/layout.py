@@ -16,9 +16,10 @@ one layout; ``reconstruct`` adds the mesh, its previews and reports, and its wor
     ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
     ROOT/.stages/               the pipeline's stage markers
 
-Paths only: a ``Layout`` creates, reads and checks nothing. ``WRITTEN_NAMES``: every name photorecon writes,
-replaces or deletes directly under a dataset or output folder (what ``--overwrite`` must not find in a folder
-photorecon did not write).
+Paths only: a ``Layout`` creates, reads and checks nothing. ``COMMAND_WRITES``: for each command that writes a
+folder, the names it writes, replaces or deletes directly in it (what ``--overwrite`` must not find in a folder that
+command did not write; ``None``: names that depend on the views, the whole folder counts as the command's).
+``WRITTEN_NAMES``: those of ``reconstruct``, whose output holds all the others.
 """
 from __future__ import annotations
 
@@ -28,6 +29,22 @@ from pathlib import Path
 WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
                  "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "preview.png", "preview_mesh.ply", "report.json",
                  "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
+
+COMMAND_WRITES: dict[str, tuple[str, ...] | None] = {
+    "reconstruct": WRITTEN_NAMES,
+    "synth": ("images", "depth", "masks", "sparse", "transforms.json", "gt_mesh.ply", "scene.json"),
+    "sfm": ("images", "masks", "sparse", "transforms.json", "colmap"),
+    "fuse": ("mesh.ply", "mesh.obj", "mesh.glb", "preview.png", ".work"),
+    "texture": ("mesh.obj", "mesh.mtl", "texture.png", "mesh.glb", "preview.png"),
+    "convert": ("cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin", "rigs.bin",
+                "frames.bin"),
+    "mvs": None,  # NAME.npy, NAME.conf.npy, NAME.normal.npy, NAME.png per view, .mvs_work
+    "depth": None,  # NAME.npy, NAME.png per view, .mono_work
+    "demo": ("scene", "reconstruction", "demo.json", "tsdf.ply", "watertight.ply", "side_by_side.png"),
+}
+# working folders whose content is complete piece by piece (task outputs, stage markers): kept after a failed run,
+# for the next run to reuse
+RESUMABLE_NAMES = (".stages", ".work", ".mvs_work", ".mono_work", "colmap")
 
 
 @dataclass(frozen=True)

@@ -270,13 +270,14 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
         check_sfm_masks(images, masks)
     inputs = (images, masks, run.poses, run.depth_model, cfgs.sfm.intrinsics,
               run.depth if run.depth != "mvs" else None)
-    with output_folder(out, overwrite, inputs=inputs) as out:
-        return _reconstruct(images, out, cfgs, force, is_video, formats, masks)
+    lock_warnings: list[str] = []  # a stale lock taken over: listed in the report too
+    with output_folder(out, overwrite, inputs=inputs, command="reconstruct", warnings=lock_warnings) as out:
+        return _reconstruct(images, out, cfgs, force, is_video, formats, masks, lock_warnings)
 
 
 def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_video: bool, formats: tuple,
-                 masks: Path | None) -> ReconstructResult:
-    """``reconstruct`` in its checked, locked output folder."""
+                 masks: Path | None, warnings: list[str] | None = None) -> ReconstructResult:
+    """``reconstruct`` in its checked, locked output folder; ``warnings``: those of the run so far."""
     from .depth.mvs import run_mvs
     from .fusion import fuse_to_files, load_frames
     from .io.colmap_text import write_colmap_text
@@ -290,7 +291,10 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
     run = cfgs.run
     layout = Layout(out)
     stages = Stages(layout.stages, force)
-    warnings: list[str] = []
+    warnings = list(warnings or [])
+    # the report is written last: a run that fails leaves none (an earlier run's would describe other files)
+    layout.report_json.unlink(missing_ok=True)
+    layout.report_html.unlink(missing_ok=True)
     handler = _WarningCollector(warnings)
     log.addHandler(handler)
     executors: list = []  # the depth and fusion tasks' executor, made (a cluster started) when first needed

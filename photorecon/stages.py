@@ -7,7 +7,8 @@ the stage's parameters (settings and ``fingerprint``s of its input files) and of
 of the stage before it, so a stage that runs again makes every later stage run again too, in this run or,
 after an interruption, in the next one. Otherwise the old marker is removed, the stage's function writes its
 outputs (each atomically: ``atomic_dir``, ``io.atomic``), and the marker is written last, with the stage's
-seconds and peak memory. ``force=True`` runs every stage.
+seconds and peak memory. ``force=True`` runs every stage. A stage that fails (an error, Ctrl-C) has its
+outputs removed, except those of stages complete before it: no partial output is left to look like a result.
 """
 from __future__ import annotations
 
@@ -97,6 +98,7 @@ class Stages:
         self.stats: dict[str, dict] = {}
         self.info: dict[str, dict] = {}
         self._previous = ""  # identity of the outputs of the last stage run or reused
+        self._complete: set[Path] = set()  # outputs of the stages run or reused so far
 
     @property
     def cached(self) -> list[str]:
@@ -121,19 +123,26 @@ class Stages:
             self.stats[name] = {"seconds": 0.0, "cached": True}
             self.info[name] = old.get("info", {})
             self._previous = old["id"]
+            self._complete.update(map(Path, outputs))
             log.debug("%s: unchanged, reused", name)
             return self.info[name]
         marker.unlink(missing_ok=True)
-        with measure(self.stats, name):
-            try:
-                result = fn()
-            except (MemoryError, RuntimeError, OSError, ImportError) as exc:  # an allocation that failed
-                if not is_out_of_memory(exc):
-                    raise
-                from .resources import available_bytes, release_memory
+        try:
+            with measure(self.stats, name):
+                try:
+                    result = fn()
+                except (MemoryError, RuntimeError, OSError, ImportError) as exc:  # an allocation that failed
+                    if not is_out_of_memory(exc):
+                        raise
+                    from .resources import available_bytes, release_memory
 
-                release_memory()
-                raise out_of_memory(name, None, available_bytes()) from None
+                    release_memory()
+                    raise out_of_memory(name, None, available_bytes()) from None
+        except BaseException:
+            for p in map(Path, outputs):  # partial (its marker is gone): removed, unless an earlier stage's
+                if p not in self._complete:
+                    _remove(p)
+            raise
         self.info[name] = result if isinstance(result, dict) else {}
         for p in map(Path, outputs):
             if p not in optional and not _present(p):
@@ -143,8 +152,19 @@ class Stages:
         params = json.loads(json.dumps(params, default=str))  # as hashed, for a reader of the marker
         atomic_write_json(marker, {"key": key, "id": self._previous, "params": params, **self.stats[name],
                                    "outputs": fingerprint(*outputs, times=False), "info": self.info[name]})
+        self._complete.update(map(Path, outputs))
         log.debug("%s: %.1f s, peak %.0f MB", name, self.stats[name]["seconds"], self.stats[name]["peak_mb"])
         return self.info[name]
+
+
+def _remove(p: Path) -> None:
+    try:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 def _present(p: Path) -> bool:

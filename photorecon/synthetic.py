@@ -208,8 +208,8 @@ class SynthResult:
 def synthesize(cfg: SynthConfig, out: str | Path, overwrite: bool = False) -> SynthResult:
     """Render ``cfg`` into ``out`` (see the module docstring for the layout). Returns the views and mesh.
 
-    Inputs are validated before anything is written; ``out`` must be empty, new, or a photorecon output
-    (else ``OutputError``, unless ``overwrite``)."""
+    Inputs are validated before anything is written; ``out`` goes through the output guard (``io.output``:
+    new, empty or synth's own, else ``OutputError`` unless ``overwrite``); a failed run leaves none of its files."""
     if cfg.mesh:
         src = load_mesh(cfg.mesh)
         source = str(cfg.mesh)
@@ -219,7 +219,8 @@ def synthesize(cfg: SynthConfig, out: str | Path, overwrite: bool = False) -> Sy
     mesh, center, scale = normalize_mesh(src)
     views = make_views(cfg)
     renderer = Renderer(mesh, cfg.seed, cfg.background)
-    with output_folder(out, overwrite, inputs=(cfg.mesh,) if cfg.mesh else ()) as out:
+    with output_folder(out, overwrite, inputs=(cfg.mesh,) if cfg.mesh else (), command="synth",
+                       resumable=False) as out:
         layout = Layout(out)
         for d in (layout.images, layout.depth, layout.masks, layout.sparse):
             d.mkdir(parents=True, exist_ok=True)

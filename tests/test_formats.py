@@ -106,7 +106,8 @@ def test_blender_round_trip_and_cli(tmp_path):
         assert (b.intrinsics.cx, b.intrinsics.cy) == pytest.approx((a.intrinsics.cx, a.intrinsics.cy))
     # CLI: Blender -> transforms.json -> Blender keeps the cameras
     assert main(["-q", "convert", str(out), str(tmp_path / "t.json")]) == 0
-    assert main(["-q", "convert", str(tmp_path / "t.json"), str(tmp_path / "transforms_val.json")]) == 0
+    assert main(["-q", "convert", str(tmp_path / "t.json"), str(tmp_path / "transforms_val.json")]) == 8  # exists
+    assert main(["-q", "convert", str(tmp_path / "t.json"), str(tmp_path / "transforms_val.json"), "--overwrite"]) == 0
     again = read_transforms(tmp_path / "transforms_val.json")
     np.testing.assert_allclose(again[2].cam_from_world, views[2].cam_from_world, atol=1e-12)
 

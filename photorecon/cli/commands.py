@@ -2,14 +2,23 @@
 from __future__ import annotations
 
 import argparse
+import logging
+from contextlib import contextmanager
 
 from .config import Ranged, add_config_arguments, command, config_from_args
 from .options import COMMON_OPTIONS, QUALITY_PRESETS, SHORT_HELP, _BASIC, _apply_quality, _quality_arg
 
+log = logging.getLogger("photorecon")
+
+
+OVERWRITE_HELP = ("write into a non-empty folder this command did not write: its files are added next to what is "
+                  "there, which is kept (never replaced)")
+OVERWRITE_FILE_HELP = "replace an existing output file (never an input, never part of a photorecon result)"
+
 
 def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     p.add_argument("-o", "--out", required=required, help="output folder")
-    p.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder not made by photorecon")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _cluster_args(p: argparse.ArgumentParser) -> None:
@@ -105,6 +114,7 @@ def eval_cmd(sub):
     p.add_argument("--ref", help="reference cameras: COLMAP folder or transforms.json")
     p.add_argument("--json", dest="json_out", nargs="?", const="-", help="print JSON (or write it to a file)")
     p.add_argument("--error-mesh", help="write the result coloured by error to this PLY (and a PNG next to it)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_FILE_HELP)
     p.set_defaults(func=_run_eval)
 
 
@@ -114,16 +124,17 @@ def _run_eval(args):
 
     import numpy as np
 
-    from ..errors import BadArgumentError, OutputError
+    from ..errors import BadArgumentError
+    from ..io.atomic import atomic_write_text
+    from ..io.output import check_file_output
 
     report = {}
-    inputs = {Path(p).resolve() for p in (args.mesh, args.gt, args.poses, args.ref) if p}
-    written = [("--json", args.json_out if args.json_out != "-" else None)]
+    inputs = (args.mesh, args.gt, args.poses, args.ref)
+    written = [("--json", args.json_out)]
     if args.error_mesh:  # the coloured mesh and its picture
         written += [("--error-mesh", args.error_mesh), ("--error-mesh", Path(args.error_mesh).with_suffix(".png"))]
     for flag, dst in written:
-        if dst and Path(dst).resolve() in inputs:
-            raise OutputError(f"{flag} {dst}: would replace an input of eval; choose another file")
+        check_file_output(dst, args.overwrite, inputs, flag)
     if args.mesh or args.gt:
         if not (args.mesh and args.gt):
             raise BadArgumentError("eval: --mesh and --gt go together")
@@ -182,7 +193,7 @@ def _run_eval(args):
         if args.json_out == "-":
             print(text)
         else:
-            Path(args.json_out).write_text(text + "\n")
+            atomic_write_text(args.json_out, text + "\n")
     if args.json_out != "-":
         _print_report(report)
     return 0
@@ -313,7 +324,8 @@ def _run_sfm(args):
         raise NoImagesError(f"{args.images}: no such image folder (or video file)")
     if args.masks:
         check_sfm_masks(args.images, args.masks)  # before anything is written
-    with output_folder(args.out, args.overwrite, inputs=(args.images, args.masks, cfg.intrinsics)) as out:
+    with output_folder(args.out, args.overwrite, inputs=(args.images, args.masks, cfg.intrinsics),
+                       command="sfm") as out:
         res = run_sfm(args.images, out, cfg, force=args.force, masks=args.masks)
         units = scale_output(out, args.images if Path(args.images).is_dir() else None, scale_cfg)["units"]
     n = len(res.registered) + len(res.unregistered)
@@ -348,14 +360,27 @@ def convert(sub):
                         "in; default) or original (world_mat alone)")
     p.add_argument("--bounds", nargs=2, type=Ranged(float, 0.0, None, exclusive_min=True), metavar=("NEAR", "FAR"),
                    help="LLFF output: near and far depth for every image (default: from the sparse points)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing DST file; a DST folder: " + OVERWRITE_HELP)
     p.set_defaults(func=_run_convert)
 
 
 def _run_convert(args):
-    from ..io.convert import convert_cameras
+    from ..io.convert import convert_cameras, output_format
+    from ..io.output import check_file_output, output_folder
 
-    dst = convert_cameras(args.src, args.dst, args.to, args.world, args.src_world, args.neus_world,
-                          tuple(args.bounds) if args.bounds else None)
+    def write():
+        return convert_cameras(args.src, args.dst, args.to, args.world, args.src_world, args.neus_world,
+                               tuple(args.bounds) if args.bounds else None)
+
+    from pathlib import Path
+
+    if (args.to if args.to != "auto" else output_format(Path(args.dst))).startswith("colmap"):  # a folder
+        with output_folder(args.dst, args.overwrite, inputs=(args.src,), command="convert", resumable=False):
+            dst = write()
+    else:
+        check_file_output(args.dst, args.overwrite, (args.src,), "DST", may_hold=(args.src,))  # a new file in SRC
+        dst = write()
     print(f"convert: {args.src} -> {dst}")
     return 0
 
@@ -379,7 +404,9 @@ def _depth_parser(sub, name: str, cfg_type, func, help: str, description: str,
     """A depth command's parser: DATASET, -o, the config's flags and the cluster flags."""
     p = sub.add_parser(name, help=help, description=description)
     p.add_argument("dataset", help=dataset_help)
-    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth)")
+    p.add_argument("-o", "--out", help="depth output folder (default: DATASET/depth, when it is new or this "
+                                        "command's own)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     add_config_arguments(p, cfg_type)
     _cluster_args(p)
     p.set_defaults(func=func)
@@ -390,33 +417,40 @@ def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
     """Open the dataset, run ``run(ds, *extra, out, cfg, executor)`` on the chosen cluster (or in process)."""
     from ..distributed import ClusterConfig, executor
     from ..io.dataset import Dataset
-    from ..io.output import output_lock
 
     ds = Dataset.open(args.dataset, masks_dir=masks)
-    out, lock_folder = _dataset_output(ds, args.out, "depth", lambda v: (f"{v.name}.npy", f"{v.name}.conf.npy",
-                                                                          f"{v.name}.normal.npy", f"{v.name}.png"))
-    with output_lock(lock_folder), executor(config_from_args(ClusterConfig, args)) as ex:
-        return ds, run(ds, *extra, out, config_from_args(cfg_type, args), ex)
+    names = [n for v in ds.views for n in (f"{v.name}.npy", f"{v.name}.conf.npy", f"{v.name}.normal.npy",
+                                           f"{v.name}.png")]
+    with _dataset_output(ds, args.out, "depth", args.command, names + [".mvs_work", ".mono_work"],
+                         args.overwrite, extra[:1]) as out:
+        log.info("%s: depth maps go to %s", args.command, out)
+        with executor(config_from_args(ClusterConfig, args)) as ex:
+            return ds, run(ds, *extra, out, config_from_args(cfg_type, args), ex)
 
 
-def _dataset_output(ds, out, default: str, names):
-    """A command that writes into a dataset (DATASET/``default``) or into ``out`` (-o): the output folder and
-    the folder to lock (the dataset, when the output lies in it). Refuses (``OutputError``, before anything is
-    written) an output that is or holds the dataset, lies in or holds its images, masks or cameras, or is a
-    folder photorecon did not write holding a file it would replace (``names(view)``: the files per view)."""
+@contextmanager
+def _dataset_output(ds, out, default: str, command: str, names, overwrite: bool, extra_inputs=()):
+    """The output folder of a command that writes into a dataset (DATASET/``default``) or into ``out`` (-o),
+    through the output guard (``io.output``): ``names`` are the files it writes there. Its inputs are the
+    dataset's images, masks and cameras (``extra_inputs`` too); while it runs the dataset is locked as well
+    when the output lies in it."""
+    from contextlib import ExitStack
     from pathlib import Path
 
-    from ..io.output import check_apart, check_foreign_files
+    from ..io.output import output_folder, output_lock
 
     root = Path(ds.root)
     out = Path(out) if out else root / default
     inputs = {Path(ds.image_path(v)).parent for v in ds.views} | {root, root / "sparse", root / "transforms.json"}
     if ds.masks_dir is not None:
         inputs.add(Path(ds.masks_dir))
-    check_apart(out, tuple(sorted(inputs)), may_hold=(root,))
-    check_foreign_files(out, [n for v in ds.views for n in names(v)])
-    inside = out.resolve().is_relative_to(root.resolve())
-    return out, root if inside else out
+    inputs = (*sorted(inputs), *extra_inputs)
+    with ExitStack() as stack:
+        folder = stack.enter_context(output_folder(out, overwrite, inputs, tuple(names), command, may_hold=(root,),
+                                                   resumable=False))
+        if folder.resolve().is_relative_to(root.resolve()):
+            stack.enter_context(output_lock(root))
+        yield folder
 
 
 def _run_mvs(args):
@@ -554,6 +588,7 @@ def view(sub):
                    help="environment: soft image-based light from all sides (default); plain: directional "
                         "lights only, quick to draw in a browser without a GPU")
     p.add_argument("--html", metavar="FILE", help="write a standalone viewer page to FILE instead of serving")
+    p.add_argument("--overwrite", action="store_true", help="--html: " + OVERWRITE_FILE_HELP)
     p.set_defaults(func=_run_view)
 
 
@@ -568,6 +603,10 @@ def _run_view(args):
         raise BadArgumentError(f"--max-faces: expected >= 4, got {args.max_faces}")
     if not 0 <= args.port <= 65535:
         raise BadArgumentError(f"--port: expected 0-65535, got {args.port}")
+    if args.html:
+        from ..io.output import check_file_output
+
+        check_file_output(args.html, args.overwrite, (args.result,), "--html")
     mesh, cameras, images = load_result(args.result)
     if args.html:
         path = write_viewer_page(args.html, mesh, cameras, title=f"photorecon: {args.result}",
@@ -600,7 +639,8 @@ def texture(sub):
                                    "mesh.mtl + texture.png, mesh.glb (texture embedded) and preview.png (or -o DIR).")
     p.add_argument("dataset", metavar="OUT", help="a reconstruct output (or any dataset folder with images and cameras)")
     p.add_argument("--mesh", help="mesh to texture (default: OUT/mesh.ply)")
-    p.add_argument("-o", "--out", help="output folder (default: OUT/textured); replaced as a whole")
+    p.add_argument("-o", "--out", help="output folder (default: OUT/textured)")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     p.add_argument("--target-faces", dest="texture_faces", type=Ranged(int, 4, 2_000_000_000, also=(0,)),
                    default=TextureConfig.texture_faces,
                    help="simplify the mesh to about this many faces first (0 = keep; default: 0)")
@@ -611,28 +651,16 @@ def texture(sub):
 def _run_texture(args):
     from pathlib import Path
 
-    from ..errors import OutputError
     from ..mesh.texture import TextureConfig, texture_output
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
     from ..io.dataset import Dataset
-    from ..io.output import output_lock
+    from ..layout import COMMAND_WRITES
 
     ds = Dataset.open(args.dataset)
-    dest = Path(args.out) if args.out else None
-    if dest is not None and dest.resolve() in (Path(args.dataset).resolve(), *Path(args.dataset).resolve().parents):
-        raise OutputError(f"-o {dest}: would replace the input folder; choose a new folder")
-    target = dest or Path(args.dataset) / "textured"
-    # the folder is replaced as a whole: refuse one holding files photorecon did not write
-    _, lock_folder = _dataset_output(ds, target, "textured",
-                                     lambda v: [p.name for p in target.iterdir()] if target.is_dir() else [])
-    if args.mesh:
-        from ..io.output import check_apart
-
-        check_apart(target, (args.mesh,))
-    # the textured folder is replaced as a whole: locked from beside it when it lies outside the dataset
-    lock_file = None if lock_folder != target else target.parent / f".{target.name}.photorecon.lock"
-    with output_lock(lock_folder, lock_file):
+    mesh = Path(args.mesh) if args.mesh else Path(args.dataset) / "mesh.ply"
+    with _dataset_output(ds, args.out, "textured", "texture", COMMAND_WRITES["texture"], args.overwrite,
+                         (mesh,)) as dest:
         info = texture_output(args.dataset, cfg, args.mesh, dest)
     print(f"texture: {info['faces']} faces, {info['charts']} charts from {info['views_used']} views, "
           f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "

@@ -70,7 +70,7 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     frames = load_frames(ds, cfg)
     from ..distributed import executor
 
-    with output_folder(out, overwrite, inputs=(root, depth_dir, masks_dir)) as out:
+    with output_folder(out, overwrite, inputs=(root, depth_dir, masks_dir), command="fuse", resumable=False) as out:
         layout = Layout(out)
         cameras = [f.view for f in frames]
         with executor(cluster) as ex:

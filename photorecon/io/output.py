@@ -1,15 +1,31 @@
-"""Output folders: never an input, never holding an input, never a stranger's files; one run at a time.
+"""The one output guard: every command that writes goes through it, with the same rules.
+
+**A command replaces only what that same command wrote.** An output folder carries the marker ``.photorecon``
+(JSON: the commands that wrote there); a command writes into
+
+* a new or empty folder, or one whose marker names this command: its own files there are replaced, nothing else;
+* any other folder holding files (a user's folder, another command's result, a folder inside a result): refused
+  unless ``--overwrite``; with it the command adds its files next to what is there and still refuses when one of
+  the names it writes (``layout.COMMAND_WRITES``) is taken: what it did not write is never replaced or deleted;
+* never an input, a folder holding an input or a folder inside an input folder (``check_apart``), and never a path
+  that is part of another command's result (``RESULT/depth`` of ``synth``'s dataset, ``RESULT/report.json``):
+  refused even with ``--overwrite``, so a result is never half-replaced.
+
+An output that is one file (``eval --json``, ``--error-mesh``, ``view --html``, ``convert DST.json``;
+``check_file_output``) is never an input nor part of a photorecon result, and an existing file there is replaced
+only with ``--overwrite``.
+
+A run that fails leaves no half-written result that looks complete: ``output_folder`` removes what a command
+without resumable stages wrote (``resumable=False``); the stage runner removes the unmarked outputs of a stage
+that failed (``stages.Stages``); working folders of complete pieces (``layout.RESUMABLE_NAMES``) are kept.
 
 ``output_folder`` is what every command that writes a folder goes through::
 
-    with output_folder(out, overwrite, inputs=(images, masks)) as out:
+    with output_folder(out, overwrite, inputs=(images, masks), command="fuse") as out:
         ...  # write into out
 
-It refuses (``OutputError``, before anything is written) an output that is an input, lies inside an input
-folder or holds an input; a non-empty folder that photorecon did not write (no ``.photorecon`` marker) unless
-``overwrite``, and even then one that already holds a path photorecon's layout writes or deletes (``images/``,
-``sparse/``, ``mesh.ply`` ...): ``--overwrite`` adds photorecon's files next to a user's, it never replaces
-one. Then it takes the folder's lock (``output_lock``) for the duration of the run.
+It refuses (``OutputError``, exit 8, before anything is written), creates the folder, marks it as the command's and
+takes its lock (``output_lock``) for the duration of the run.
 
 The lock is ``OUT/.photorecon.lock``: created with ``O_EXCL`` and held with ``flock`` while the run goes on; it
 records the process id, host, start time and command. A second run on the same folder stops with an
@@ -22,6 +38,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import socket
 import sys
 import time
@@ -29,7 +46,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import OutputError
-from ..layout import WRITTEN_NAMES
+from ..layout import COMMAND_WRITES, RESUMABLE_NAMES, WRITTEN_NAMES
 
 try:
     import fcntl
@@ -40,39 +57,163 @@ log = logging.getLogger("photorecon")
 
 MARKER = ".photorecon"
 LOCK = ".photorecon.lock"
+ANY = "*"  # the commands of a marker written before markers named them: any command counts as its own
 
 
 def _resolve(p: str | Path) -> Path:
     return Path(p).expanduser().resolve()
 
 
-def check_output(out: str | Path, overwrite: bool = False, inputs: tuple = (),
-                 writes: tuple[str, ...] = WRITTEN_NAMES) -> Path:
-    """Check ``out`` against ``inputs`` (files or folders, None ignored) and its content, writing nothing.
+def _cannot_write(out: Path, exc: OSError) -> OutputError:
+    return OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); choose a writable folder")
 
-    Raises ``OutputError`` when ``out`` is an input, lies inside an input folder, or holds an input; when it
-    exists and is not a folder; when it is a non-empty folder without photorecon's marker and not ``overwrite``;
-    and, with ``overwrite``, when such a folder already holds one of ``writes`` (names photorecon writes or
-    deletes there), naming it."""
+
+# --- the marker -------------------------------------------------------------------------------------------------
+def marker_commands(folder: str | Path) -> list[str]:
+    """The commands that wrote ``folder`` (its ``.photorecon`` marker); ``[]`` without a marker, ``["*"]`` for
+    a marker that does not name them (written by an earlier photorecon)."""
+    path = Path(folder) / MARKER
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return [ANY] if path.exists() else []
+    try:
+        data = json.loads(text)
+        cmds = data.get("commands") if isinstance(data, dict) else None
+        if isinstance(cmds, list) and cmds and all(isinstance(c, str) for c in cmds):
+            return cmds
+    except ValueError:
+        pass
+    return [ANY]
+
+
+def mark(folder: str | Path, command: str) -> None:
+    """Add ``command`` to ``folder``'s marker (creating it)."""
+    folder = Path(folder)
+    cmds = [c for c in marker_commands(folder) if c != ANY]
+    if command in cmds and (folder / MARKER).is_file():
+        return
+    (folder / MARKER).write_text(json.dumps({"written_by": "photorecon", "commands": [*cmds, command]}) + "\n")
+
+
+def _owns(folder: Path, command: str | None) -> bool:
+    cmds = marker_commands(folder)
+    return bool(cmds) and (ANY in cmds or command is None or command in cmds)
+
+
+def _names(command: str) -> tuple[str, ...] | None:
+    return COMMAND_WRITES.get(command, WRITTEN_NAMES) if command != ANY else WRITTEN_NAMES
+
+
+def _cmd_list(cmds: list[str]) -> str:
+    known = [c for c in cmds if c != ANY]
+    return " and ".join(f"photorecon {c}" for c in known) or "photorecon"
+
+
+def part_of_result(path: str | Path) -> tuple[Path, list[str]] | None:
+    """``(result folder, its commands)`` when ``path`` is, or lies in, something a command wrote in a result
+    folder above it (a name of ``layout.COMMAND_WRITES``, or anything in a folder of per-view files such as
+    ``mvs``'s): what writing ``path`` would half-replace. ``None`` otherwise."""
+    res = _resolve(path)
+    for parent in res.parents:
+        cmds = marker_commands(parent)
+        if not cmds:
+            continue
+        first = res.relative_to(parent).parts[0]
+        for c in cmds:
+            names = _names(c)
+            if names is None or first in names:
+                return parent, cmds
+    return None
+
+
+def _content(out: Path) -> list[Path]:
+    return sorted(p for p in out.iterdir() if p.name not in (LOCK, MARKER))
+
+
+def _listing(paths: list[Path]) -> str:
+    return paths[0].name + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
+
+
+# --- the checks -------------------------------------------------------------------------------------------------
+def check_output(out: str | Path, overwrite: bool = False, inputs: tuple = (),
+                 writes: tuple[str, ...] | None = None, command: str | None = None, may_hold: tuple = ()) -> Path:
+    """Check the output folder ``out`` of ``command`` (the module docstring's rules), writing nothing.
+
+    ``inputs``: files or folders (None ignored) that ``out`` must keep apart from (``check_apart``; it may lie in
+    ``may_hold``). ``writes``: the names the command writes, replaces or deletes in ``out`` (default: its
+    ``layout.COMMAND_WRITES``). Raises ``OutputError`` naming what would be replaced."""
     out = Path(out)
-    check_apart(out, inputs)
+    if writes is None:
+        writes = COMMAND_WRITES.get(command, WRITTEN_NAMES) or ()
+    check_apart(out, inputs, may_hold)
     if out.exists() and not out.is_dir():
-        raise OutputError(f"output {out} exists and is not a folder")
-    if not out.is_dir() or (out / MARKER).exists():
+        raise OutputError(f"output {out} exists and is not a folder; choose a folder")
+    _check_not_busy(out)  # a folder another run is writing: said first, whatever it holds
+    if not out.is_dir() or _owns(out, command):
+        if not out.is_dir():
+            _check_not_part(out, command)
         return out
-    content = [p for p in out.iterdir() if p.name != LOCK]
+    content = _content(out)
     if not content:
         return out
+    _check_not_part(out, command)
+    cmds = marker_commands(out)
+    what = (f"is the result of {_cmd_list(cmds)}, which {_cmd_list([command]) if command else 'this command'} does "
+            "not replace" if cmds else f"holds files photorecon did not write ({_listing(content)})")
     if not overwrite:
-        raise OutputError(f"output folder {out} is not empty and was not written by photorecon; "
-                          "pass --overwrite or choose another folder")
-    taken = [n for n in writes if (out / n).exists() or (out / n).is_symlink()]
+        raise OutputError(f"output folder {out} {what}; choose another folder, or pass --overwrite to add "
+                          "photorecon's files next to them (they are kept)")
+    taken = [out / n for n in writes if (out / n).exists() or (out / n).is_symlink()]
     if taken:
-        raise OutputError(f"output folder {out} was not written by photorecon and already holds {out / taken[0]}"
-                          + (f" (and {len(taken) - 1} more of photorecon's names)" if len(taken) > 1 else "")
-                          + ", which photorecon would replace; --overwrite never replaces a file photorecon did not "
-                            "write: choose another folder or move it away")
+        raise OutputError(f"output folder {out} {what} and already holds {taken[0]}"
+                          + (f" (and {len(taken) - 1} more of the names photorecon writes)" if len(taken) > 1 else "")
+                          + "; --overwrite never replaces a file the command did not write: choose another folder")
     return out
+
+
+def _part(out: Path, command: str | None) -> tuple[Path, list[str]] | None:
+    """``part_of_result(out)`` unless the result is ``command``'s own, or ``out`` is a new name directly in the
+    result folder (adding it replaces nothing)."""
+    part = part_of_result(out)
+    if part is None or (command is not None and command in part[1]):
+        return None
+    if not (out.exists() or out.is_symlink()) and _resolve(out).parent == part[0]:
+        return None
+    return part
+
+
+def _check_not_part(out: Path, command: str | None) -> None:
+    part = _part(out, command)
+    if part is not None:
+        raise OutputError(f"output {out} is part of the result of {_cmd_list(part[1])} in {part[0]}; a result is "
+                          "never half-replaced: choose a folder outside it (-o), or a new folder in it")
+
+
+def check_file_output(path: str | Path | None, overwrite: bool = False, inputs: tuple = (), flag: str = "",
+                      may_hold: tuple = ()) -> None:
+    """Check an output that is one file: ``OutputError`` when it is an input or lies inside an input folder
+    (a new file in the folders ``may_hold`` excepted), is a folder, is part of a photorecon result
+    (``part_of_result``), or exists and not ``overwrite``."""
+    if path is None or str(path) in ("", "-"):
+        return
+    path = Path(path)
+    name = f"{flag} {path}" if flag else f"output {path}"
+    for inp in inputs:
+        if inp is not None and str(inp) != "" and _resolve(inp) == _resolve(path):
+            raise OutputError(f"{name}: would replace an input ({inp}); choose another file")
+    held = [p for p in may_hold if p is not None and _resolve(path).is_relative_to(_resolve(p))]
+    if held and (path.exists() or path.is_symlink()):
+        raise OutputError(f"{name}: would replace a file in the input folder {held[0]}; choose another file")
+    check_apart(path, inputs, may_hold)
+    if path.is_dir():
+        raise OutputError(f"{name} is a folder; give a file name")
+    part = _part(path, None)
+    if part is not None:
+        raise OutputError(f"{name} is part of the result of {_cmd_list(part[1])} in {part[0]}; a result is never "
+                          "half-replaced: choose a file outside it")
+    if path.exists() and not overwrite:
+        raise OutputError(f"{name} exists; choose another file, or pass --overwrite to replace it")
 
 
 def check_apart(out: str | Path, inputs: tuple = (), may_hold: tuple = ()) -> None:
@@ -87,7 +228,7 @@ def check_apart(out: str | Path, inputs: tuple = (), may_hold: tuple = ()) -> No
             continue
         ip = _resolve(inp)
         if res == ip:
-            raise OutputError(f"output {out} is the input {inp}; choose an output folder outside the inputs")
+            raise OutputError(f"output {out} is the input {inp}; choose an output outside the inputs")
         if ip.is_dir() and res.is_relative_to(ip) and ip not in inside_ok:
             raise OutputError(f"output {out} is inside the input folder {inp}; choose an output folder outside it")
         if ip.is_relative_to(res):
@@ -95,75 +236,75 @@ def check_apart(out: str | Path, inputs: tuple = (), may_hold: tuple = ()) -> No
                               "choose an output folder outside the inputs")
 
 
-def is_photorecon_folder(folder: str | Path) -> bool:
-    """Whether ``folder`` was written by photorecon: it, or the folder it is in, carries the marker."""
-    folder = Path(folder)
-    return (folder / MARKER).exists() or (folder.parent / MARKER).exists()
-
-
-def check_foreign_files(folder: str | Path, names) -> None:
-    """``OutputError`` when ``folder`` exists, was not written by photorecon (``is_photorecon_folder``) and holds
-    one of ``names`` (the files a command is about to write or replace there), naming it."""
-    folder = Path(folder)
-    if not folder.is_dir() or is_photorecon_folder(folder):
-        return
-    taken = [n for n in names if (folder / n).exists()]
-    if taken:
-        raise OutputError(f"{folder} was not written by photorecon and already holds {folder / taken[0]}"
-                          + (f" (and {len(taken) - 1} more)" if len(taken) > 1 else "")
-                          + ", which would be replaced; choose another output folder (-o)")
-
-
-def _mark(out: Path) -> None:
-    if not (out / MARKER).exists():
-        (out / MARKER).write_text("written by photorecon\n")
-
-
+# --- the output folder ------------------------------------------------------------------------------------------
 def prepare_output(out: str | Path, overwrite: bool = False, inputs: tuple = (),
-                   writes: tuple[str, ...] = WRITTEN_NAMES) -> Path:
-    """``check_output``, then create ``out`` and mark it as photorecon's. Takes no lock: a run uses
+                   writes: tuple[str, ...] | None = None, command: str | None = None) -> Path:
+    """``check_output``, then create ``out`` and mark it as ``command``'s. Takes no lock: a run uses
     ``output_folder``."""
-    out = check_output(out, overwrite, inputs, writes)
+    out = check_output(out, overwrite, inputs, writes, command)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        _mark(out)
+        mark(out, command or ANY)
     except OSError as exc:
-        raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
-                          "choose a writable folder") from None
+        raise _cannot_write(out, exc) from None
     return out
 
 
 @contextmanager
 def output_folder(out: str | Path, overwrite: bool = False, inputs: tuple = (),
-                  writes: tuple[str, ...] = WRITTEN_NAMES):
-    """Check ``out`` (``check_output``), create it, lock it (``output_lock``), mark it as photorecon's and
-    yield it as a ``Path``; the lock is released when the block ends. A folder this call created is removed
-    again when the block fails before writing anything into it."""
-    out = check_output(out, overwrite, inputs, writes)
+                  writes: tuple[str, ...] | None = None, command: str | None = None, may_hold: tuple = (),
+                  resumable: bool = True, warnings: list | None = None):
+    """Check ``out`` (``check_output``), create it, lock it (``output_lock``), mark it as ``command``'s and
+    yield it as a ``Path``; the lock is released when the block ends.
+
+    When the block fails: a command without resumable stages (``resumable=False``) has what it wrote removed
+    (``writes`` but ``layout.RESUMABLE_NAMES``: before the run they were the command's own, or absent); a folder
+    this call created is removed when nothing but its marker is left. ``warnings``: a list
+    that receives the lock's warning (a stale lock taken over), for the run's report."""
+    if writes is None:
+        writes = COMMAND_WRITES.get(command, WRITTEN_NAMES) or ()
+    out = check_output(out, overwrite, inputs, writes, command, may_hold)
     created = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
-                          "choose a writable folder") from None
+        raise _cannot_write(out, exc) from None
     try:
-        with output_lock(out):
+        with output_lock(out, warnings=warnings):
             try:
-                _mark(out)
+                mark(out, command or ANY)
             except OSError as exc:
-                raise OutputError(f"output folder {out}: cannot write there ({exc.strerror or exc}); "
-                                  "choose a writable folder") from None
-            yield out
+                raise _cannot_write(out, exc) from None
+            try:
+                yield out
+            except BaseException:
+                if not resumable:
+                    remove_written(out, writes)
+                raise
     except BaseException:
         if created:
             _remove_if_unused(out)
         raise
 
 
+def remove_written(out: Path, names) -> None:
+    """Remove ``names`` from ``out`` (a failed run's partial output), working folders of complete pieces
+    (``layout.RESUMABLE_NAMES``) kept."""
+    for n in names:
+        p = out / n
+        if n in RESUMABLE_NAMES or not (p.exists() or p.is_symlink()):
+            continue
+        try:
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink()
+        except OSError:
+            pass
+
+
 def _remove_if_unused(out: Path) -> None:
     """Remove ``out`` when it holds no file but photorecon's marker (empty folders aside)."""
-    import shutil
-
     try:
         if all(p.is_dir() or p == out / MARKER for p in out.rglob("*")):
             shutil.rmtree(out)
@@ -214,7 +355,32 @@ def _in_use(folder: Path, info: dict, path: Path) -> OutputError:
                        f"it to finish or choose another output folder (if no such run is going on, remove {path})")
 
 
-def _acquire(folder: Path, path: Path) -> int:
+def _check_not_busy(folder: Path) -> None:
+    """``OutputError`` naming the run when another live run holds ``folder``'s lock; writes nothing."""
+    path = folder / LOCK
+    if str(_resolve(path)) in _HELD:
+        return
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        info = _read_info(fd)
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+                return  # nobody holds it: a stale lock, taken over later
+            except BlockingIOError:
+                raise _in_use(folder, info, path) from None
+            except OSError:
+                pass
+        if _alive(info):
+            raise _in_use(folder, info, path)
+    finally:
+        os.close(fd)
+
+
+def _acquire(folder: Path, path: Path, warnings: list | None = None) -> int:
     me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.strftime("%Y-%m-%d %H:%M:%S %z"),
           "command": " ".join(["photorecon", *sys.argv[1:]])[:300] if sys.argv and sys.argv[0] else ""}
     for _ in range(20):
@@ -254,8 +420,11 @@ def _acquire(folder: Path, path: Path) -> int:
                 os.close(fd)
                 raise _in_use(folder, info, path)
             if info:
-                log.warning("output folder %s: the run that locked it (%s) is no longer running; taking it over",
-                            folder, _describe(info))
+                msg = (f"output folder {folder}: the run that locked it ({_describe(info)}) is no longer running; "
+                       "taking it over")
+                log.warning("%s", msg)
+                if warnings is not None:
+                    warnings.append(msg)
         data = json.dumps(me).encode()
         os.ftruncate(fd, 0)
         os.pwrite(fd, data, 0)
@@ -274,11 +443,11 @@ def _release(path: Path, fd: int) -> None:
 
 
 @contextmanager
-def output_lock(folder: str | Path, path: str | Path | None = None):
+def output_lock(folder: str | Path, path: str | Path | None = None, warnings: list | None = None):
     """Hold ``folder``'s lock (see the module docstring) for the block, creating the folder if needed;
     ``OutputError`` when another live run holds it. Nested use on a folder this process already holds is
     allowed. ``path``: the lock file, when not ``folder``/.photorecon.lock (a folder that is replaced as a
-    whole is locked from beside it)."""
+    whole is locked from beside it). ``warnings``: a list that receives the warning of a stale lock taken over."""
     folder = Path(folder)
     path = Path(path) if path else folder / LOCK
     try:
@@ -294,7 +463,7 @@ def output_lock(folder: str | Path, path: str | Path | None = None):
         finally:
             _HELD[key][1] -= 1
         return
-    fd = _acquire(folder, path)
+    fd = _acquire(folder, path, warnings)
     _HELD[key] = [fd, 1]
     try:
         yield folder

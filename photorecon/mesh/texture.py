@@ -31,6 +31,7 @@ convention: ``u`` right, ``v`` up (row 0 of the PNG is ``v = 1``), texel centre 
 from __future__ import annotations
 
 import logging
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -430,7 +431,7 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     (default ``out``/textured/) with mesh.obj, mesh.mtl, texture.png, mesh.glb and preview.png. Returns facts
     for the report."""
     from ..io.dataset import Dataset
-    from ..io.output import MARKER
+    from ..io.output import mark
     from .export import load_mesh
 
     cfg = expect_config(cfg, TextureConfig, "cfg")
@@ -452,14 +453,17 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     dest = Path(dest) if dest else Layout(out).textured
     from ..report.preview import render_preview
 
-    tmp_preview = dest.with_name(f".{dest.name}.preview.png")
+    # written beside ``dest`` first, then moved in file by file: what else ``dest`` holds stays as it was
+    tmp = dest.with_name(f".{dest.name}.texture.partial")
     try:
-        render_preview(res.mesh, tmp_preview, cameras=views)
-        export_textured(res.mesh, dest)
-        tmp_preview.replace(dest / "preview.png")
-        (dest / MARKER).write_text("written by photorecon\n")  # a later run may replace this folder
+        export_textured(res.mesh, tmp)
+        render_preview(res.mesh, tmp / "preview.png", cameras=views)
+        dest.mkdir(parents=True, exist_ok=True)
+        for f in sorted(tmp.iterdir()):
+            f.replace(dest / f.name)
+        mark(dest, "texture")  # texture may replace these files later (also in reconstruct's textured/)
     finally:
-        tmp_preview.unlink(missing_ok=True)
+        shutil.rmtree(tmp, ignore_errors=True)
     log.info("texture: %d faces, %d charts, %d views used, %.2f texels per pixel -> %s", res.info["faces"],
              res.info["charts"], res.info["views_used"], res.info["texels_per_pixel"], dest)
     return {**res.info, "folder": str(dest)}
