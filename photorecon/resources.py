@@ -28,13 +28,18 @@ def available_bytes() -> int:
 
 def _address_space() -> int:
     """The process's virtual memory size (VmSize), bytes; 0 where unknown."""
+    return _status_bytes("VmSize") or 0
+
+
+def _status_bytes(key: str) -> int | None:
+    """A size line of /proc/self/status (``VmSize``, ``VmHWM``) in bytes; None where unknown."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmSize:"):
+            if line.startswith(key + ":"):
                 return int(line.split()[1]) * 1024
     except OSError:
         pass
-    return 0
+    return None
 
 
 # The address space the native libraries take once loaded (pycolmap, Open3D, numba and their dependencies):
@@ -94,13 +99,8 @@ def reset_peak() -> bool:
 
 def peak_bytes() -> int:
     """Peak resident set since the last ``reset_peak`` (or process start)."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    peak = _status_bytes("VmHWM")
+    return peak if peak is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 _open_peaks: list[list[int]] = []  # one [peak bytes seen so far] per enclosing measure() block
