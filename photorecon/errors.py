@@ -124,6 +124,9 @@ def is_out_of_memory(exc: BaseException) -> bool:
     native library that could not be loaded for lack of address space ("failed to map segment")."""
     import errno
 
+    if exc.__cause__ is not None or exc.__context__ is not None:  # "Cannot import the C++ backend" from ...
+        if is_out_of_memory(exc.__cause__ or exc.__context__):
+            return True
     if isinstance(exc, MemoryError):
         return True
     if isinstance(exc, OSError) and exc.errno == errno.ENOMEM:

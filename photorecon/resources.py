@@ -48,11 +48,11 @@ LIBRARIES_ADDRESS_SPACE = 1.9 * 2**30
 _M_ARENA_MAX = -8  # glibc's mallopt parameter
 
 
-def fit_address_space() -> None:
+def fit_address_space(preload: bool = True) -> None:
     """Under an address-space limit (``ulimit -v``, RLIMIT_AS; nothing to do without one): cap glibc's malloc
     arenas at 2 (each thread's arena reserves 64 MB of address space, a native library's threads would take
-    their share of the limit), and load the native libraries now, before any work, so that a limit too small
-    for them fails here with ``OutOfMemoryError`` instead of halfway through a stage."""
+    their share of the limit), and with ``preload`` load the native libraries now, before any work, so that a
+    limit too small for them fails here with ``OutOfMemoryError`` instead of halfway through a stage."""
     import importlib
 
     from .errors import is_out_of_memory, out_of_memory
@@ -66,10 +66,10 @@ def fit_address_space() -> None:
         ctypes.CDLL("libc.so.6").mallopt(_M_ARENA_MAX, 2)
     except (OSError, AttributeError):
         pass
-    for name in ("cv2", "pycolmap", "open3d", "numba"):  # cv2 first: see poses.sfm._pycolmap
+    for name in ("cv2", "pycolmap", "open3d", "numba") if preload else ():  # cv2 first: see poses.sfm._pycolmap
         try:
             importlib.import_module(name)
-        except (ImportError, OSError) as exc:
+        except (ImportError, OSError, RuntimeError) as exc:  # pycolmap: RuntimeError from the ImportError
             if not is_out_of_memory(exc):
                 raise
             raise out_of_memory("start-up", LIBRARIES_ADDRESS_SPACE, limit,

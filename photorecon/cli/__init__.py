@@ -17,6 +17,7 @@ log = logging.getLogger("photorecon")
 
 EXIT_INTERRUPTED = 130  # SIGINT (Ctrl-C): 128 + 2
 EXIT_TERMINATED = 143  # SIGTERM: 128 + 15
+STAGE_COMMANDS = ("reconstruct", "sfm", "mvs", "depth", "fuse", "texture", "demo")  # pycolmap, Open3D, numba
 EXIT_BROKEN_PIPE = 141  # stdout's reader went away (photorecon eval ... | head): 128 + SIGPIPE, as the shell's own
 
 
@@ -70,8 +71,8 @@ def _install_signal_handlers(native: bool = True) -> dict:
     if native:
         try:
             import pycolmap  # noqa: F401
-        except ImportError:  # pragma: no cover
-            pass
+        except (ImportError, RuntimeError, OSError):  # not installed, or no address space left to load it: the
+            pass  # command that needs it says so
     old = {}
     try:
         old[signal.SIGTERM] = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -119,10 +120,11 @@ def _main(argv: list[str] | None) -> int:
     try:
         if getattr(args, "config", None):
             apply_settings_file(parser.command_parser(args.command), args, args.config)
-        _install_signal_handlers()  # again, after the native libraries' own
         from ..resources import fit_address_space
 
-        fit_address_space()  # under ulimit -v: fewer malloc arenas; the libraries loaded (or exit 11) first
+        # under ulimit -v: fewer malloc arenas; the commands that run the stages load the libraries (or exit 11) first
+        fit_address_space(preload=args.command in STAGE_COMMANDS)
+        _install_signal_handlers()  # again, after the native libraries' own
         return int(args.func(args) or 0)
     except PhotoreconError as exc:
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
