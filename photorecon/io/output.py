@@ -264,7 +264,7 @@ def output_folder(out: str | Path, overwrite: bool = False, inputs: tuple = (),
     if writes is None:
         writes = COMMAND_WRITES.get(command, WRITTEN_NAMES) or ()
     out = check_output(out, overwrite, inputs, writes, command, may_hold)
-    created = not out.exists()
+    created = next((p for p in reversed((out, *out.parents)) if not p.exists()), None)  # the top folder made here
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -282,8 +282,15 @@ def output_folder(out: str | Path, overwrite: bool = False, inputs: tuple = (),
                     remove_written(out, writes)
                 raise
     except BaseException:
-        if created:
+        if created is not None:
             _remove_if_unused(out)
+            for p in out.parents:  # the parents this call made, when left empty
+                if p == created.parent:
+                    break
+                try:
+                    p.rmdir()
+                except OSError:
+                    break
         raise
 
 
