@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .io.atomic import atomic_write_json
 from .layout import Layout
+from .fields import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -28,6 +29,9 @@ class DemoConfig:
     views: int = field(default=30, metadata={"help": "number of views", "range": (2, 10_000)})
     width: int = field(default=512, metadata={"help": "image width, pixels", "range": (64, 8192)})
     height: int = field(default=384, metadata={"help": "image height, pixels", "range": (64, 8192)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 

@@ -27,6 +27,7 @@ from typing import Any, Callable, Iterator, Sequence
 from .errors import BadArgumentError
 from .progress import bar
 from .tasks import IN_PROCESS, Executor, Task
+from .fields import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -48,6 +49,9 @@ class ClusterConfig:
 
     cluster: str | None = field(default=None, metadata={"help": "run the depth and fusion tasks on Dask: local:N (N local workers) or tcp://HOST:PORT (a scheduler; default: in this process)", "metavar": "ADDRESS", "parse": _cluster_arg})
     retries: int = field(default=3, metadata={"help": "with --cluster: times Dask retries a task that failed or whose worker died", "range": (0, 100)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 def parse_cluster(spec: str) -> tuple[str, int | str]:

@@ -21,6 +21,7 @@ import numpy as np
 import trimesh
 
 from .errors import BadArgumentError, EmptyMeshError, InputDataError
+from .mesh.export import check_finite_vertices
 
 
 @dataclass
@@ -238,13 +239,14 @@ def load_reference(path: str | Path) -> trimesh.Trimesh | np.ndarray:
     geoms = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
     meshes = [g for g in geoms if isinstance(g, trimesh.Trimesh) and len(g.faces)]
     if meshes:
-        return meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
+        mesh = meshes[0] if len(meshes) == 1 else trimesh.util.concatenate(meshes)
+        check_finite_vertices(mesh.vertices, path)
+        return mesh
     parts = [np.asarray(g.vertices, np.float64).reshape(-1, 3) for g in geoms if hasattr(g, "vertices")]
     pts = np.concatenate(parts) if parts else np.zeros((0, 3))
     if not len(pts):
         raise InputDataError(f"{path}: no faces and no points: an empty mesh or point cloud")
-    if not np.isfinite(pts).all():
-        raise InputDataError(f"{path}: {int((~np.isfinite(pts).all(1)).sum())} points have NaN/inf coordinates")
+    check_finite_vertices(pts, path, "points")
     return pts
 
 

@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import platform
 import shutil
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -45,9 +45,11 @@ from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
 from .poses.scale import ScaleConfig
 from .poses.sfm import SfMConfig
 from .layout import Layout
+from .resources import check_memory
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
 from .mesh.texture import TextureConfig
+from .fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -63,6 +65,10 @@ class ReconstructConfig:
     formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write, comma-separated: ply, obj, glb", "metavar": "LIST"})
     masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or NAME.EXT.png at the image's size, 0 = ignore the pixel (default: the images' alpha channel)", "metavar": "DIR"})
     texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos (OUT/textured/)"})
+    min_depth_fraction: float = field(default=0.02, metadata={"help": "MVS: fail (exit 6) when on average less than this fraction of a view's pixels gets a confirmed depth: a mesh from so little depth is a fragment (0 = off; lower it for a subject that fills only a small part of the photos)", "range": (0.0, 1.0)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 @dataclass
@@ -76,6 +82,10 @@ class StageConfigs:
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
+
+    def __post_init__(self):
+        for f in fields(self):  # each stage's config of its own class (each checked its fields when built)
+            expect_config(getattr(self, f.name), f.default_factory().__class__, f"StageConfigs.{f.name}")
 
 
 @dataclass
@@ -96,6 +106,43 @@ class ReconstructResult(Result):
     texture: dict  # with --texture: faces, charts, views_used, folder ...
     warnings: list
     units: str  # "metres" when a scale was found, else "arbitrary"
+
+
+# The depth stage's memory per working pixel of one reference view: its maps and costs, plus each source
+# image (50 views at 1600x1067, 8 sources: 863 MB process peak, about 500 MB above the process's own)
+DEPTH_BYTES_PER_PIXEL = 100
+DEPTH_BYTES_PER_SOURCE_PIXEL = 25
+
+
+def depth_memory(views, cfg: MVSConfig) -> float:
+    """Bytes the MVS depth stage needs at once (about): the largest view at the working size, with its
+    sources."""
+    px = 0.0
+    for v in views:
+        w, h = v.intrinsics.width, v.intrinsics.height
+        scale = min(1.0, cfg.max_size / max(w, h)) if cfg.max_size else 1.0
+        px = max(px, w * h * scale * scale)
+    return px * (DEPTH_BYTES_PER_PIXEL + DEPTH_BYTES_PER_SOURCE_PIXEL * cfg.n_sources)
+
+
+def confirmed_fraction(per_view: dict, n_views: int) -> float:
+    """The mean fraction of the views' pixels with a confirmed depth (a view without depth counts 0)."""
+    return round(sum(v["valid_fraction"] for v in per_view.values()) / max(n_views, 1), 5)
+
+
+def check_enough_depth(mean: float, per_view: dict, n_views: int, run: ReconstructConfig, mvs: MVSConfig) -> None:
+    """``NoDepthError`` when the depth maps confirm less than ``run.min_depth_fraction`` of the pixels on
+    average: the mesh would be a fragment (a few hundred faces), not a result."""
+    if mean >= run.min_depth_fraction:
+        return
+    best = max((v["valid_fraction"] for v in per_view.values()), default=0.0)
+    hint = ("--mvs sweep is a rough preview; use --mvs patchmatch (the default)" if mvs.method == "sweep" else
+            "check that the photos overlap and the cameras are right (photorecon view OUT); lower "
+            "--min-consistent or --min-confidence")
+    raise NoDepthError(f"depth: only {100 * mean:.1f}% of the pixels of the {n_views} views have a confirmed depth "
+                       f"(the best view {100 * best:.1f}%; at least {100 * run.min_depth_fraction:g}% needed): too "
+                       f"little for a mesh; {hint}; a subject that fills only a small part of the photos: lower "
+                       "--min-depth-fraction")
 
 
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
@@ -132,7 +179,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     from .poses.ingest import VIDEO_SUFFIXES, not_a_folder
     from .mesh import parse_formats
 
-    cfgs = cfgs or StageConfigs()
+    cfgs = expect_config(cfgs, StageConfigs, "cfgs")
     run = cfgs.run
     images = Path(images)
     is_video = images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES
@@ -141,10 +188,6 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     if is_video and run.poses:
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
-    if run.texture:
-        from .mesh.texture import check_config
-
-        check_config(cfgs.texture)  # a bad --atlas-size fails before anything is written
     if run.depth != "mvs" and not Path(run.depth).is_dir():
         raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
     if run.depth_model:
@@ -235,10 +278,17 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                                    work / "depth")
                     info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
                 elif source == "mvs":
+                    check_memory("depth (MVS)", depth_memory(ds.views, cfgs.mvs))
+                    if cfgs.mvs.method == "sweep":
+                        log.warning("depth: --mvs sweep is a rough preview (fronto-parallel planes): its mesh is far "
+                                    "less complete and accurate than --mvs patchmatch's; --quality preview is the "
+                                    "quick look that keeps PatchMatch")
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"],
-                            "triangulation_seconds": rep["triangulation_seconds"]}
+                            "triangulation_seconds": rep["triangulation_seconds"],
+                            "confirmed_fraction": confirmed_fraction(rep["per_view"], len(ds.views))}
+                    check_enough_depth(info["confirmed_fraction"], rep["per_view"], len(ds.views), run, cfgs.mvs)
                     written = sorted(rep["per_view"])
                 else:
                     # depth maps in the given cameras' units scale with them (--marker-size, GPS)

@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterable
 
-from .errors import OutputError
+from .errors import OutputError, is_out_of_memory, out_of_memory
 from .io.atomic import atomic_write_json
 from .io.space import is_no_space, no_space_error
 from .resources import measure
@@ -129,7 +129,15 @@ class Stages:
         marker.unlink(missing_ok=True)
         try:
             with measure(self.stats, name):
-                result = fn()
+                try:
+                    result = fn()
+                except (MemoryError, RuntimeError, OSError, ImportError) as exc:  # an allocation that failed
+                    if not is_out_of_memory(exc):
+                        raise
+                    from .resources import available_bytes, release_memory
+
+                    release_memory()
+                    raise out_of_memory(name, None, available_bytes()) from None
         except BaseException:
             for p in map(Path, outputs):  # partial (its marker is gone): removed, unless an earlier stage's
                 if p not in self._complete:

@@ -35,6 +35,7 @@ from .layout import Layout
 from .mesh import export, load_mesh
 from .progress import bar
 from .render import Renderer, SolidNoise
+from .fields import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -61,6 +62,9 @@ class SynthConfig:
     background: Literal["color", "texture"] = field(default="color", metadata={"help": "plain or textured backdrop"})
     points: int = field(default=4000, metadata={"help": "surface points sampled for the sparse COLMAP model", "range": (0, 100_000_000)})
     seed: int = field(default=0, metadata={"help": "random seed (texture, jitter, sparse points)", "range": (0, 2**31 - 1)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 # --- scenes ------------------------------------------------------------------------------------------------

@@ -174,16 +174,18 @@ def test_special_values_keep_their_meaning(parser):
     assert vars(ns)["mvs.max_size"] == 0  # 0 = full resolution
 
 
-def test_validate_checks_configs_built_in_python():
+def test_validate_checks_configs_changed_after_they_were_built():
     from photorecon.depth.mvs import MVSConfig
     from photorecon.fusion import FusionConfig
     from photorecon.mesh import CleanConfig
 
     validate(MVSConfig())
-    for bad in (MVSConfig(max_size=-1), MVSConfig(n_sources=0), MVSConfig(rel_depth=float("nan")),
-                FusionConfig(trunc_voxels=0), CleanConfig(crop=(0, 0, 0, 1, -1, 1)), CleanConfig(crop=(1, 2))):
-        with pytest.raises(BadArgumentError, match="expected"):
-            validate(bad)
+    for cfg, name, value in ((MVSConfig(), "max_size", -1), (MVSConfig(), "n_sources", 0),
+                             (MVSConfig(), "rel_depth", float("nan")), (FusionConfig(), "trunc_voxels", 0),
+                             (CleanConfig(), "crop", (0, 0, 0, 1, -1, 1)), (CleanConfig(), "crop", (1, 2))):
+        setattr(cfg, name, value)
+        with pytest.raises(BadArgumentError, match=f"{type(cfg).__name__}.{name} .*expected"):
+            validate(cfg)
 
 
 def test_unexpected_failure_is_one_line_exit_10(fast_main, parser, monkeypatch, capsys):

@@ -743,3 +743,37 @@ def _triangles(mesh) -> np.ndarray:
     order = np.lexsort(tri.transpose(2, 0, 1)[::-1], axis=-1)  # each triangle's corners by x, then y, then z
     tri = np.take_along_axis(tri, order[..., None], axis=1).reshape(len(tri), 9)
     return tri[np.lexsort(tri.T[::-1])]
+
+
+@pytest.mark.parametrize("side", ["--mesh", "--gt"])
+def test_eval_of_a_mesh_with_nan_vertices_names_them_and_exits_3(tmp_path, capsys, side):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    v = sphere.vertices.copy()
+    v[[17, 30, 31]] = np.nan
+    v[40, 2] = np.inf
+    trimesh.Trimesh(v, sphere.faces, process=False).export(tmp_path / "bad.ply")
+    sphere.export(tmp_path / "good.ply")
+    files = {"--mesh": tmp_path / "good.ply", "--gt": tmp_path / "good.ply", side: tmp_path / "bad.ply"}
+    assert main(["eval", "--mesh", str(files["--mesh"]), "--gt", str(files["--gt"])]) == 3
+    line = _error_line(capsys.readouterr().err)
+    assert "Traceback" not in line and "bad.ply" in line
+    assert f"4 of {len(v)} vertices have NaN or infinite coordinates (the first: index 17)" in line
+
+
+def test_too_little_confirmed_depth_fails_loudly_with_its_own_message(blob_small, tmp_path, capsys):
+    """A depth stage that confirms depth in a small fraction of the pixels makes a fragment of a mesh: exit 6 with
+    a line saying how little, instead of a 'successful' run; --mvs sweep (a rough preview) says so."""
+    out = tmp_path / "out"
+    argv = ["reconstruct", str(blob_small / "images"), "--poses", str(blob_small / "sparse" / "0"), "-o", str(out),
+            "--mvs", "sweep", "--min-depth-fraction", "0.5"]
+    assert main(argv) == 6
+    err = capsys.readouterr().err
+    assert "--mvs sweep is a rough preview" in err  # the warning, before the depth stage runs
+    line = _error_line(err)
+    assert line.startswith("photorecon reconstruct: error: depth: only ")
+    mean = float(line.split("only ")[1].split("%")[0])
+    assert 0 < mean < 50 and "of the 12 views have a confirmed depth" in line and "at least 50% needed" in line
+    assert "use --mvs patchmatch (the default)" in line
+    assert not (out / "depth").exists() and not (out / "mesh.ply").exists()

@@ -304,7 +304,8 @@ def test_sfm_caches_are_keyed_on_their_settings(ring_tiny, tmp_path, capsys):
     assert seq_pairs < pairs
     assert json.loads((out / "colmap" / "sfm_report.json").read_text())["matching"] == "sequential"
     marker = json.loads((out / "colmap" / ".stages" / "matching.json").read_text())
-    assert marker["params"] == {"matching": "sequential", "pairing": {"overlap": 3, "loops": True}} and marker["seconds"] > 0
+    assert marker["params"] == {"matching": "sequential", "pairing": {"overlap": 3, "loops": True}, "seed": 0} \
+        and marker["seconds"] > 0
 
 
 @pytest.mark.slow

@@ -113,9 +113,10 @@ def test_low_contrast_photos_register_with_a_second_sift_pass(tmp_path):
 
 
 def test_min_registered_is_a_fraction(tmp_path, capsys):
-    """--min-registered 2 is refused before any work, saying what the setting means (not a list of zero
+    """--min-registered 2 is refused before any work, naming the setting and its range (not a list of zero
     unregistered images)."""
-    with pytest.raises(BadArgumentError, match="fraction"):
+    with pytest.raises(BadArgumentError, match=r"SfMConfig.min_registered \(--min-registered\): expected a number "
+                                               r"in 0\.\.1, got 2"):
         run_sfm(tmp_path, tmp_path / "out", SfMConfig(min_registered=2.0))
     assert not (tmp_path / "out").exists()
     src = tmp_path / "images"

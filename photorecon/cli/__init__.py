@@ -1,6 +1,6 @@
 """Command-line interface: thin. Parses arguments into the stage configs (dataclasses) and turns every failure
 into one line on stderr and an exit code: a ``PhotoreconError`` its class's code, a parse error or an
-out-of-range value 2, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
+out-of-range value 2, a failed allocation ``OutOfMemoryError``'s 11, anything unexpected ``InternalError``'s 10 (``-v`` shows the traceback), Ctrl-C 130 and
 SIGTERM 143 (both leave no incomplete output behind, and a re-run resumes); stdout closed by its reader 141."""
 from __future__ import annotations
 
@@ -12,12 +12,13 @@ import sys
 
 from .. import __version__
 from .config import COMMANDS, Parser, apply_settings_file
-from ..errors import InternalError, PhotoreconError, from_os_error
+from ..errors import InternalError, PhotoreconError, from_os_error, is_out_of_memory, out_of_memory
 
 log = logging.getLogger("photorecon")
 
 EXIT_INTERRUPTED = 130  # SIGINT (Ctrl-C): 128 + 2
 EXIT_TERMINATED = 143  # SIGTERM: 128 + 15
+STAGE_COMMANDS = ("reconstruct", "sfm", "mvs", "depth", "fuse", "texture", "demo")  # pycolmap, Open3D, numba
 EXIT_BROKEN_PIPE = 141  # stdout's reader went away (photorecon eval ... | head): 128 + SIGPIPE, as the shell's own
 
 
@@ -73,8 +74,8 @@ def _install_signal_handlers(native: bool = True) -> dict:
     if native:
         try:
             import pycolmap  # noqa: F401
-        except ImportError:  # pragma: no cover
-            pass
+        except (ImportError, RuntimeError, OSError):  # not installed, or no address space left to load it: the
+            pass  # command that needs it says so
     old = {}
     try:
         old[signal.SIGTERM] = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -122,6 +123,10 @@ def _main(argv: list[str] | None) -> int:
     try:
         if getattr(args, "config", None):
             apply_settings_file(parser.command_parser(args.command), args, args.config)
+        from ..resources import fit_address_space
+
+        # under ulimit -v: fewer malloc arenas; the commands that run the stages load the libraries (or exit 11) first
+        fit_address_space(preload=args.command in STAGE_COMMANDS)
         _install_signal_handlers()  # again, after the native libraries' own
         return int(args.func(args) or 0)
     except PhotoreconError as exc:
@@ -147,9 +152,11 @@ def _main(argv: list[str] | None) -> int:
             import traceback
 
             traceback.print_exc()
-        what = ("out of memory (a smaller working size needs less: --quality preview)" if isinstance(exc, MemoryError)
-                else f"{type(exc).__name__}: {_one_line(exc, 300)}")
-        print(f"{prog}: error: {what} (run with -v for details)", file=sys.stderr)
+        if is_out_of_memory(exc):  # outside a stage (which names itself)
+            err = out_of_memory(args.command)
+            print(f"{prog}: error: {_one_line(err)}", file=sys.stderr)
+            return err.exit_code
+        print(f"{prog}: error: {type(exc).__name__}: {_one_line(exc, 300)} (run with -v for details)", file=sys.stderr)
         return InternalError.exit_code
 
 

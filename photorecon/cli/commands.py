@@ -651,10 +651,9 @@ def texture(sub):
 def _run_texture(args):
     from pathlib import Path
 
-    from ..mesh.texture import TextureConfig, check_config, texture_output
+    from ..mesh.texture import TextureConfig, texture_output
 
     cfg = config_from_args(TextureConfig, args, texture_faces=args.texture_faces)  # --target-faces: skipped above
-    check_config(cfg)
     from ..io.dataset import Dataset
     from ..layout import COMMAND_WRITES
 

@@ -8,18 +8,10 @@ thus share a setting's name (``threads``, ``seed``): the plain flag belongs to t
 prefixed flags reach each stage on its own, and nothing crashes. Values land in ``args`` under the prefixed
 ``dest``, so ``config_from_args`` never mixes two stages' settings.
 
-Numeric fields declare their valid values in their metadata, checked when the arguments are parsed (a bad
-value exits 2 with one line naming the flag and the range, before any work) and again by ``validate`` on the
-config itself (values from a ``--config`` file, a preset, or the Python API)::
-
-    "range": (LO, HI)          inclusive bounds; None = unbounded on that side (always finite)
-    "exclusive_min": True      LO itself is not allowed (a size or distance > 0)
-    "also": (V, ...)           special values outside the range (``-1`` = all cores, ``0`` = off)
-    "odd": True                an odd integer (a window size)
-    "length": N                a comma-separated tuple of exactly N numbers (each within the range)
-
-A text field may declare ``"parse": FUNCTION`` (argparse's ``type``: returns the value or raises
-``argparse.ArgumentTypeError``), e.g. ``--cluster``'s address, checked before any work too.
+Each field declares its valid values once (``photorecon.fields``: a range in its metadata, ``Literal`` choices,
+a ``parse`` check for text): the flag's parser checks them when the arguments are parsed (a bad value exits 2
+with one line naming the flag and the valid values, before any work), and the config checks them again when it
+is built (values from a ``--config`` file, a preset, or the Python API), with the same ``Ranged`` objects.
 
 Settings are resolved in this order, each overriding the one before: the config's default, the command's own
 default (``defaults=``), a preset (``--quality``), a ``--config FILE.toml``, and flags given on the command line.
@@ -32,165 +24,8 @@ import math
 import types
 import typing
 
-# --- ranges -------------------------------------------------------------------------------------------------
-
-
-class Ranged:
-    """An argparse ``type`` that parses a number (or a comma-separated tuple of numbers) and checks its range;
-    its ``ArgumentTypeError`` states the valid values. ``kind`` is ``int`` or ``float``."""
-
-    def __init__(self, kind: type, lo=None, hi=None, *, exclusive_min: bool = False, also: tuple = (),
-                 odd: bool = False, length: int | None = None, sep: bool = False):
-        self.kind, self.lo, self.hi = kind, lo, hi
-        self.exclusive_min, self.also, self.odd = exclusive_min, tuple(also), odd
-        self.length = length  # a tuple of exactly this many values
-        self.sep = sep or length is not None  # comma-separated values (a list when length is None)
-        self.__name__ = kind.__name__
-
-    @classmethod
-    def from_metadata(cls, kind: type, md: typing.Mapping) -> Ranged | None:
-        if "range" not in md:
-            return None
-        lo, hi = md["range"]
-        return cls(kind, lo, hi, exclusive_min=md.get("exclusive_min", False), also=md.get("also", ()),
-                   odd=md.get("odd", False), length=md.get("length"))
-
-    def describe(self) -> str:
-        """'an integer in 64..65536 or 0', 'a number > 0', '6 values separated by commas, each a number'."""
-        what = "an integer" if self.kind is int else "a number"
-        lo, hi = _num(self.lo), _num(self.hi)
-        if lo is not None and hi is not None and not self.exclusive_min:
-            rng = f" in {lo}..{hi}"
-        elif lo is not None and hi is not None:
-            rng = f" > {lo} and <= {hi}"
-        elif lo is not None:
-            rng = f" {'>' if self.exclusive_min else '>='} {lo}"
-        elif hi is not None:
-            rng = f" <= {hi}"
-        else:
-            rng = "" if self.kind is int else " (finite)"
-        text = what + rng + (", odd" if self.odd else "")
-        if self.also:
-            text += " or " + " or ".join(str(a) for a in self.also)
-        if self.length is not None:
-            return f"{self.length} values separated by commas, each {text}"
-        if self.sep:
-            return f"one or more values separated by commas, each {text}"
-        return text
-
-    def short(self) -> str:
-        """The range for a help line: '64..65536 or 0', '> 0', '>= 1'."""
-        lo, hi = _num(self.lo), _num(self.hi)
-        if lo is not None and hi is not None:
-            text = f"> {lo}, <= {hi}" if self.exclusive_min else f"{lo}..{hi}"
-        elif lo is not None:
-            text = f"{'>' if self.exclusive_min else '>='} {lo}"
-        elif hi is not None:
-            text = f"<= {hi}"
-        else:
-            text = "any"
-        if self.odd:
-            text += ", odd"
-        if self.also:
-            text += " or " + " or ".join(str(a) for a in self.also)
-        return text
-
-    def error(self, value) -> str | None:
-        """Why ``value`` (already a number) is not valid, or None."""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return f"expected {self.describe()}, got {value!r}"
-        if self.kind is int and not (isinstance(value, int) or (isinstance(value, float) and value.is_integer())):
-            return f"expected {self.describe()}, got {value!r}"
-        if not math.isfinite(value):
-            return f"expected {self.describe()}, got {value!r}"
-        if value in self.also:
-            return None
-        ok = ((self.lo is None or (value > self.lo if self.exclusive_min else value >= self.lo))
-              and (self.hi is None or value <= self.hi) and (not self.odd or int(value) % 2 == 1))
-        return None if ok else f"expected {self.describe()}, got {value!r}"
-
-    def _one(self, text: str):
-        text = text.strip()
-        try:
-            value = self.kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}") from None
-        if self.error(value) is not None:
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
-        return value
-
-    def __call__(self, text: str):
-        if not self.sep:
-            return self._one(text)
-        parts = [t for t in text.replace(",", " ").split()]
-        if not parts or (self.length is not None and len(parts) != self.length):
-            raise argparse.ArgumentTypeError(f"expected {self.describe()}, got {text!r}")
-        values = [self._one(t) for t in parts]
-        return tuple(values) if self.length is not None else values
-
-    def check(self, value) -> str | None:
-        """Why a config value (a number, or a tuple/list of them) is not valid, or None."""
-        if not self.sep:
-            return self.error(value)
-        if not isinstance(value, (tuple, list)) or (self.length is not None and len(value) != self.length):
-            return f"expected {self.describe()}, got {value!r}"
-        for v in value:
-            if self.error(v) is not None:
-                return f"expected {self.describe()}, got {value!r}"
-        return None
-
-    def __repr__(self) -> str:
-        return f"Ranged({self.describe()})"
-
-
-def _num(x):
-    """1000000.0 -> '1000000', 0.5 -> '0.5', None -> None (for messages)."""
-    if x is None:
-        return None
-    if isinstance(x, float) and x.is_integer() and abs(x) < 1e9:
-        return str(int(x))
-    return f"{x:g}" if isinstance(x, float) else str(x)
-
-
-def field_flag(f: dataclasses.Field) -> str:
-    """A config field's plain flag: ``metadata['flag']`` or ``--field-name``."""
-    return f.metadata.get("flag") or "--" + f.name.replace("_", "-")
-
-
-def _field_kind(tp) -> tuple[type | None, bool]:
-    """(int or float or None, is a tuple) of a field's annotation (``X | None`` unwrapped)."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (typing.Union, types.UnionType):
-        inner = [a for a in args if a is not type(None)]
-        return _field_kind(inner[0]) if len(inner) == 1 else (None, False)
-    if origin is tuple:
-        return float, True
-    if tp in (int, float):
-        return tp, False
-    return None, False
-
-
-def validate(cfg) -> None:
-    """Check every field of the config ``cfg`` that declares a range (see the module docstring); raises
-    ``BadArgumentError`` naming the flag, the valid values and the value found."""
-    from ..errors import BadArgumentError
-
-    hints = typing.get_type_hints(type(cfg))
-    for f in dataclasses.fields(cfg):
-        kind, is_tuple = _field_kind(hints[f.name])
-        value = getattr(cfg, f.name)
-        if kind is None or value is None:
-            continue
-        rng = Ranged.from_metadata(kind, f.metadata)
-        if rng is None:
-            continue
-        if is_tuple and rng.length is None:
-            rng.sep = True
-        why = rng.check(value)
-        if why is None and f.metadata.get("box") and not all(a < b for a, b in zip(value[:3], value[3:])):
-            why = f"expected xmin < xmax, ymin < ymax, zmin < zmax, got {value!r}"
-        if why is not None:
-            raise BadArgumentError(f"{field_flag(f)}: {why}")
+# ranges, choices and the check of a config's fields: photorecon.fields (the configs check themselves with it)
+from ..fields import Ranged, check_config as validate, field_flag, field_kind  # noqa: F401  (validate: API)
 
 
 # --- the command-line parser ----------------------------------------------------------------------------------
@@ -385,7 +220,7 @@ def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), default
             kw["help"] = f"{help_} (default: {'on' if default else 'off'})"
             parser.add_argument(*flags, action=BooleanFlag, **kw)
             continue
-        kind, is_tuple = _field_kind(tp)
+        kind, is_tuple = field_kind(tp)
         rng = Ranged.from_metadata(kind, f.metadata) if kind is not None else None
         if rng is not None and is_tuple:
             rng.sep = True
@@ -437,7 +272,7 @@ def _dest(prefix: str, name: str) -> str:
 
 def config_from_args(config_cls, args: argparse.Namespace, **overrides):
     """The config ``config_cls`` from the values ``add_config_arguments`` parsed into ``args`` (plus
-    ``overrides``), checked by ``validate``."""
+    ``overrides``), checked by ``validate`` (which a config's own ``__post_init__`` runs too)."""
     prefix = config_prefix(config_cls)
     values_in = vars(args)
     values = {f.name: values_in[_dest(prefix, f.name)] for f in dataclasses.fields(config_cls)

@@ -61,7 +61,7 @@ SHORT_HELP: dict[str, str] = {
     "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
     "--matching": "image pairs to match: auto, exhaustive, sequential, spatial (default: auto)",
     "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",
-    "--mvs": "patchmatch (default) or sweep (a fast plane sweep)",
+    "--mvs": "patchmatch (default) or sweep (a plane sweep: a rough preview, far less accurate)",
     "--min-confidence": "drop depths below this confidence, 0..1 (default: 0.2)",
     "--mesher": "tsdf (default), grid or poisson",
     "--crop": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units",

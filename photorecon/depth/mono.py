@@ -34,6 +34,7 @@ from ..io.images import write_depth
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
 from .align import Fit, fit_scale_shift
+from ..fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -73,6 +74,9 @@ class MonoConfig:
         if len(p["mean"]) != 3 or len(p["std"]) != 3 or min(p["std"]) <= 0:
             raise BadArgumentError(f"--mean/--std: expected 3 values each (std > 0), got {p['mean']} / {p['std']}")
         return p
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 def check_model_file(path: str | Path) -> Path:
@@ -246,7 +250,7 @@ def run_mono(dataset, model_path: str | Path, out_dir: str | Path | None = None,
     import hashlib
     import shutil
 
-    cfg = cfg or MonoConfig()
+    cfg = expect_config(cfg, MonoConfig, "cfg")
     net = MonoModel(model_path, cfg)  # a bad model fails here, before any task
     out = Path(out_dir) if out_dir else dataset.layout.depth
     out.mkdir(parents=True, exist_ok=True)

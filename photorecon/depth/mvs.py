@@ -50,6 +50,7 @@ from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_c
                      _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
 from .sweep import plane_sweep
+from ..fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -98,6 +99,9 @@ class MVSConfig:
     n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)", "range": (2, 16384)})
     window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)", "range": (1, 63), "odd": True})
     best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel", "range": (1, 256)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 # Named settings for a caller that needs other values than the defaults (which are for 1600-px photos):
@@ -445,7 +449,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     finished tasks are reused by the next run with the same settings; the sub-folder is removed on success."""
     import shutil
 
-    cfg = cfg or MVSConfig()
+    cfg = expect_config(cfg, MVSConfig, "cfg")
     ex = executor or IN_PROCESS
     model = dataset.model
     out = Path(out_dir) if out_dir else dataset.layout.depth

@@ -15,6 +15,7 @@ import trimesh
 
 from ..cameras import View
 from ..errors import BadArgumentError, EmptyMeshError
+from ..fields import expect_config
 from ..resources import release_memory
 from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
                       tsdf_fuse_chunked)
@@ -37,6 +38,7 @@ def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray 
          dataset=None, work_dir=None) -> trimesh.Trimesh:
     """Fuse depth frames into one mesh with ``cfg.mesher``. TSDF runs in chunks (``tsdf_fuse_chunked``, which
     reads the depth maps from ``dataset``) when ``cfg.chunk_voxels`` is set or ``executor`` is a distributed one."""
+    cfg = expect_config(cfg, FusionConfig, "cfg")
     if cfg.mesher == "tsdf" and not cfg.watertight:
         if dataset is not None and (cfg.chunk_voxels or getattr(executor, "distributed", False)):
             return tsdf_fuse_chunked(dataset, frames, cfg, sparse_points, executor, work_dir)
@@ -62,7 +64,8 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     from ..mesh import CleanConfig
     from ..report.preview import render_preview
 
-    cfg = cfg or FusionConfig()
+    cfg = expect_config(cfg, FusionConfig, "cfg")
+    clean_cfg = expect_config(clean_cfg, CleanConfig, "clean_cfg")
     ds = Dataset.open(root, depth_dir, masks_dir)
     frames = load_frames(ds, cfg)
     from ..distributed import executor
@@ -77,6 +80,23 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
 
         render_preview(decimate_for_viewer(mesh), layout.preview, cameras=cameras)  # a few hundred pixels a side
         return layout.mesh("ply")
+
+
+def canonical_order(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The same mesh with its vertices sorted by position and its faces by their vertex numbers (each face
+    starting at its lowest vertex, its winding kept): marching cubes on several threads (Open3D's, the chunks'
+    stitching) emits the same triangles in an order that changes between runs, and the cleaning and the files
+    would follow it."""
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+    rank = np.empty(len(order), dtype=f.dtype)
+    rank[order] = np.arange(len(order), dtype=f.dtype)
+    f = rank[f]
+    first = f.argmin(axis=1)
+    f = np.take_along_axis(f, (first[:, None] + np.arange(3)) % 3, axis=1)
+    f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+    colors = np.asarray(mesh.visual.vertex_colors)[order] if mesh.visual.kind == "vertex" else None
+    return trimesh.Trimesh(v[order], f, vertex_colors=colors, process=False, metadata=dict(mesh.metadata))
 
 
 def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout, formats: tuple[str, ...],
@@ -95,6 +115,7 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
     if not len(fused.faces):
         raise EmptyMeshError("the mesh has no triangle")
+    fused = canonical_order(fused)  # the same depth maps give the same file, whatever order the threads took
     m, metadata = to_open3d(fused), dict(fused.metadata)
     del fused  # the cleaning works on the Open3D copy
     release_memory()  # the grid's and the frames' freed pages: the cleaning's peak would stack on them

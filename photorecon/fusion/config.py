@@ -8,6 +8,7 @@ from typing import Literal
 import numpy as np
 
 from ..cameras import View
+from ..fields import check_config
 
 
 _BYTES_PER_VOXEL = 4 + 4 + 12  # tsdf, weight, colour (float32)
@@ -40,6 +41,9 @@ class FusionConfig:
     poisson_depth: int = field(default=0, metadata={"help": "poisson: octree depth (0 = a cell of about 2 pixel footprints, depth 5 to 10)", "range": (0, 16)})
     poisson_trim: float = field(default=0.02, metadata={"help": "poisson: drop the surface where the sample density is below this quantile of the vertices' densities (0 = off)", "range": (0.0, 1.0)})
     watertight: bool = field(default=False, metadata={"help": "poisson: close what the cameras never saw into one watertight surface; report.json says how much area was invented"})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 @dataclass

@@ -15,6 +15,7 @@ import trimesh
 
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
 from ..io.atomic import atomic_path
+from ..fields import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -34,6 +35,9 @@ class CleanConfig:
     scene: Literal["auto", "object", "open"] = field(default="auto", metadata={"help": "object: remove the table or turntable an object stands on; open: keep the ground; auto: object when the cameras look at one point from around it and a support plane lies under it"})
     object: bool = field(default=False, metadata={"help": "the same as --scene object"})
     object_cut: float = field(default=0.0, metadata={"help": "--object: remove up to this height above the support plane, scene units (0 = the support's fused thickness)", "range": (0.0, None)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 def to_open3d(mesh: trimesh.Trimesh):

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import trimesh
 
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
@@ -56,4 +57,15 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         loaded = trimesh.util.concatenate(geoms) if geoms else None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise InputDataError(f"{path}: the mesh has no faces; a triangle mesh is needed to render")
+    check_finite_vertices(loaded.vertices, path)
     return loaded
+
+
+def check_finite_vertices(vertices, path, what: str = "vertices") -> None:
+    """Raise ``InputDataError`` naming ``path``, how many of ``vertices`` ((N, 3)) have a NaN or infinite
+    coordinate and the index of the first, when any has."""
+    bad = ~np.isfinite(np.asarray(vertices, np.float64).reshape(-1, 3)).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise InputDataError(f"{path}: {int(bad.sum())} of {len(bad)} {what} have NaN or infinite coordinates "
+                             f"(the first: index {first}); remove them or re-export the file")

@@ -48,6 +48,7 @@ from ..progress import bar
 from ..resources import available_bytes
 from .atlas import _Charts, _merge_boxes, _rect_layout, make_charts, pack_charts, shelf_pack
 from .clean import harmonic_fill
+from ..fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -62,7 +63,7 @@ TEXTURED_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.glb")
 class TextureConfig:
     """Settings of the texturing stage (``reconstruct --texture``, ``photorecon texture``)."""
 
-    atlas_size: int = field(default=4096, metadata={"help": "texture atlas width and height, texels", "range": (256, 65536)})
+    atlas_size: int = field(default=4096, metadata={"help": "texture atlas width and height, texels", "range": (256, MAX_ATLAS)})
     texture_faces: int = field(default=0, metadata={"help": "simplify the mesh to about this many faces before texturing (0 = keep it)", "range": (4, 2_000_000_000), "also": (0,)})
     padding: int = field(default=2, metadata={"help": "texels of photo kept around every chart (against seams under filtering and mip-mapping)", "range": (0, 64)})
     min_cos: float = field(default=0.1, metadata={"help": "a view sees a face only if |cos(normal, ray)| >= this", "range": (0.0, 0.999)})
@@ -70,6 +71,9 @@ class TextureConfig:
     smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)", "range": (0, 10_000)})
     exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
     consistency: float = field(default=20.0, metadata={"help": "a view whose colour of a face is farther than this RGB distance (0-255) from the median is not used for it (0 = off)", "range": (0.0, 1000.0)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 @dataclass
@@ -79,19 +83,6 @@ class Textured:
     labels: np.ndarray  # (F,) view index per face of the input mesh, -1 = seen by no view
     gains: np.ndarray  # (V, 3) per-view, per-channel gains the photos were divided by
     info: dict
-
-
-def check_config(cfg: TextureConfig) -> None:
-    if not (256 <= cfg.atlas_size <= MAX_ATLAS):
-        raise BadArgumentError(f"--atlas-size: expected 256 to {MAX_ATLAS} texels, got {cfg.atlas_size}")
-    if cfg.padding < 0 or cfg.padding > 64:
-        raise BadArgumentError(f"--padding: expected 0 to 64 texels, got {cfg.padding}")
-    if not 0 <= cfg.min_cos < 1:
-        raise BadArgumentError(f"--min-cos: expected 0 <= value < 1, got {cfg.min_cos}")
-    if cfg.consistency < 0:
-        raise BadArgumentError(f"--consistency: expected 0 (off) or a colour distance > 0, got {cfg.consistency}")
-    if cfg.texture_faces and cfg.texture_faces < 4:
-        raise BadArgumentError(f"--texture-faces: expected 0 (keep) or >= 4, got {cfg.texture_faces}")
 
 
 def check_atlas_memory(atlas_size: int) -> None:
@@ -293,8 +284,8 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
                  cfg: TextureConfig | None = None, masks: Callable[[View], np.ndarray | None] | None = None) -> Textured:
     """Texture ``mesh`` from ``views`` (``images(k)``: the k-th view's photo, (H, W, 3) uint8, at its camera's
     size). Raises ``EmptyMeshError`` for a mesh without faces, ``TextureError`` when no view sees the mesh."""
-    cfg = cfg or TextureConfig()
-    check_config(cfg)
+    cfg = expect_config(cfg, TextureConfig, "cfg")
+    check_config(cfg)  # also after changes made to it since it was built
     if mesh is None or not len(mesh.faces):
         raise EmptyMeshError("the mesh has no faces: nothing to texture")
     if not views:
@@ -443,8 +434,8 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     from ..io.output import mark
     from .export import load_mesh
 
-    cfg = cfg or TextureConfig()
-    check_config(cfg)
+    cfg = expect_config(cfg, TextureConfig, "cfg")
+    check_config(cfg)  # also after changes made to it since it was built
     out = Path(out)
     ds = Dataset.open(out)
     if mesh is None:

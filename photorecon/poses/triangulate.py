@@ -29,6 +29,7 @@ from ..conventions import colmap_from_intrinsics
 from ..errors import BadArgumentError, InputDataError, OutputError
 from ..io.colmap_text import SparseModel
 from ..io.paths import IMAGE_SUFFIXES, inside
+from ..fields import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -50,6 +51,9 @@ class TriangulateConfig:
     use_alpha_mask: bool = field(default=True, metadata={"help": "no features where an image's alpha channel is 0"})
     min_points: int = field(default=50, metadata={"help": "fewer triangulated points than this: warn and return the model unchanged", "range": (0, 100_000_000)})
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)", "range": (1, 4096), "also": (-1,)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
 
 
 @dataclass
