@@ -73,7 +73,10 @@ def test_a_flat_textureless_region_does_not_drift():
     out, info = refine_mesh(plane, views, _grey(plane, views), RefineConfig(refine=True), subdivide=False)
     fp = 3.0 / views[0].intrinsics.fx
     z = np.asarray(out.vertices)[:, 2]
-    assert np.abs(z[disc]).mean() < 0.1 * fp and np.abs(z[disc]).max() < 0.75 * fp, np.abs(z[disc]).max() / fp
+    # the disc's middle stays put; within a few footprints of its rim the patches reach the texture and the
+    # vertices there follow it by up to ~0.7 footprint
+    assert np.abs(z[np.hypot(verts[:, 0], verts[:, 1]) < 0.3]).mean() < 0.05 * fp
+    assert np.abs(z[disc]).mean() < 0.15 * fp and np.abs(z[disc]).max() < fp, np.abs(z[disc]).max() / fp
     inner = np.abs(verts[:, :2]).max(1) < 1.0  # the textured ring around the disc, away from the plane's edge
     assert np.abs(z[inner & ~disc]).mean() < 0.1 * fp
 
