@@ -170,3 +170,13 @@ def test_reconstruct_refine_option(blob_small, tmp_path):
     assert len(mesh.vertices) == rep["mesh"]["vertices"] == r["vertices"]
     m = mesh_metrics(mesh, trimesh.load(blob_small / "gt_mesh.ply", process=False), n_samples=30_000)
     assert m.fscore >= 0.97, m
+
+
+def test_relief_scene_has_bumps_below_a_footprint():
+    from photorecon.synthetic import make_scene
+
+    m = make_scene("relief")
+    h = np.linalg.norm(m.vertices, axis=1) - 1.0  # height above the unit sphere
+    assert h.min() > -1e-9 and h.max() > 0.0018
+    assert (h > 0.0029).mean() < 0.02  # under one footprint (0.0029 at the default rig) but where bumps overlap
+    assert 0.05 < (h > 0.001).mean() < 0.4  # bumps, not a uniformly inflated sphere
