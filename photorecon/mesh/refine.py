@@ -83,6 +83,18 @@ def _sample(img, P, x, y, z, w, h):
             + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
 
 
+@njit(cache=True, inline="always")
+def _patch(img, P, pts, w, h, out):
+    """``_sample`` at each of ``pts`` (S, 3) into ``out`` (S,); returns their mean, NaN when one is outside."""
+    m = 0.0
+    for k in range(pts.shape[0]):
+        out[k] = _sample(img, P, pts[k, 0], pts[k, 1], pts[k, 2], w, h)
+        if not np.isfinite(out[k]):
+            return np.nan
+        m += out[k]
+    return m / pts.shape[0]
+
+
 @njit(cache=True, parallel=True)
 def patch_scores(pos, nrm, t1, t2, spacing, step, offsets, sel, P, imgs, sizes, half, min_std):
     """Photo-consistency of candidate positions: (V, C) float32, NaN where not scored.
@@ -114,17 +126,9 @@ def patch_scores(pos, nrm, t1, t2, spacing, step, offsets, sel, P, imgs, sizes, 
                     for q in range(3):
                         pts[k, q] = pos[v, q] + d * nrm[v, q] + (a * t1[v, q] + b * t2[v, q]) * spacing[v]
                     k += 1
-            ok = True
-            mr = 0.0
-            for k in range(S):
-                ref[k] = _sample(imgs[r], P[r], pts[k, 0], pts[k, 1], pts[k, 2], sizes[r, 0], sizes[r, 1])
-                if not np.isfinite(ref[k]):
-                    ok = False
-                    break
-                mr += ref[k]
-            if not ok:
+            mr = _patch(imgs[r], P[r], pts, sizes[r, 0], sizes[r, 1], ref)
+            if not np.isfinite(mr):
                 continue
-            mr /= S
             vr = 0.0
             for k in range(S):
                 ref[k] -= mr
@@ -137,17 +141,9 @@ def patch_scores(pos, nrm, t1, t2, spacing, step, offsets, sel, P, imgs, sizes, 
                 o = sel[v, j]
                 if o < 0:
                     break
-                mo = 0.0
-                for k in range(S):
-                    oth[k] = _sample(imgs[o], P[o], pts[k, 0], pts[k, 1], pts[k, 2], sizes[o, 0], sizes[o, 1])
-                    if not np.isfinite(oth[k]):
-                        ok = False
-                        break
-                    mo += oth[k]
-                if not ok:
-                    ok = True
+                mo = _patch(imgs[o], P[o], pts, sizes[o, 0], sizes[o, 1], oth)
+                if not np.isfinite(mo):
                     continue
-                mo /= S
                 vo = 0.0
                 cross = 0.0
                 for k in range(S):
