@@ -41,6 +41,7 @@ from .errors import BadArgumentError, NoDepthError, NoImagesError
 from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
+from .mesh.refine import RefineConfig
 from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
 from .poses.scale import ScaleConfig
 from .poses.sfm import SfMConfig
@@ -82,6 +83,7 @@ class StageConfigs:
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
+    refine: RefineConfig = field(default_factory=RefineConfig)  # photometric refinement of the cleaned mesh
 
     def __post_init__(self):
         for f in fields(self):  # each stage's config of its own class (each checked its fields when built)
@@ -146,14 +148,26 @@ def check_enough_depth(mean: float, per_view: dict, n_views: int, run: Reconstru
 
 
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
-                 executor=None):
-    """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``.
-    Returns the mesh and its facts (``fusion.fuse_to_files``)."""
+                 executor=None, refine_cfg: RefineConfig | None = None):
+    """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``;
+    with ``refine_cfg.refine`` the cleaned mesh refined against the photos (``mesh.refine``) replaces those files.
+    Returns the mesh and its facts (``fusion.fuse_to_files``; ``refine``: what the refinement did)."""
     from .fusion import fuse_to_files, load_frames
 
     frames = load_frames(ds, fusion_cfg)
-    return fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor, ds,
-                         work_dir)
+    mesh, info = fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor,
+                               ds, work_dir)
+    if refine_cfg is not None and refine_cfg.refine:
+        from .mesh import export
+        from .mesh.refine import refine_dataset
+
+        del frames
+        # a mesh simplified to a face budget stays at its budget
+        mesh, info["refine"] = refine_dataset(mesh, ds, refine_cfg, subdivide=not clean_cfg.target_faces)
+        info.update(vertices=len(mesh.vertices), faces=len(mesh.faces))
+        for fmt in formats:
+            export(mesh, layout.mesh(fmt))
+    return mesh, info
 
 
 def preview_stage(mesh, ds, layout: Layout) -> None:
@@ -312,13 +326,14 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
 
         def fusion() -> dict:
             fused["mesh"], info = fusion_stage(ds, cfgs.fusion, cfgs.clean, layout, formats, work / "fusion",
-                                               executor())
+                                               executor(), cfgs.refine)
             return info
 
         def preview() -> None:
             preview_stage(fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0])), ds, layout)
 
-        stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats},
+        stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats,
+                              **({"refine": asdict(cfgs.refine)} if cfgs.refine.refine else {})},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats])
         stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh])
 
@@ -352,7 +367,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
 
 def asdict_shallow(cfgs: StageConfigs) -> dict:
     return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean,
-            "scale": cfgs.scale, "texture": cfgs.texture, "cluster": cfgs.cluster}
+            "scale": cfgs.scale, "texture": cfgs.texture, "cluster": cfgs.cluster, "refine": cfgs.refine}
 
 
 class _WarningCollector(logging.Handler):

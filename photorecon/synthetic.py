@@ -39,14 +39,14 @@ from .fields import check_config
 
 log = logging.getLogger("photorecon")
 
-SCENES = ("blob", "knot", "room")
+SCENES = ("blob", "knot", "room", "relief")
 
 
 @dataclass
 class SynthConfig:
     """Settings of ``photorecon synth``."""
 
-    scene: Literal["blob", "knot", "room"] = field(default="blob", metadata={"help": "built-in procedural scene"})
+    scene: Literal["blob", "knot", "room", "relief"] = field(default="blob", metadata={"help": "built-in procedural scene (relief: a unit sphere with bumps 2 thousandths of its radius high, under one pixel footprint at the default rig)"})
     mesh: str | None = field(default=None, metadata={"help": "mesh file (OBJ, PLY, GLB, STL, OFF) instead of --scene", "metavar": "FILE"})
     rig: Literal["sphere", "ring", "hemisphere", "stereo", "pair"] = field(default="sphere", metadata={"help": "camera placement: sphere, ring or hemisphere around the scene; stereo = a rectified pair (--baseline apart along x); pair = two cameras --baseline apart looking at the centre (--views ignored)"})
     baseline: float = field(default=0.3, metadata={"help": "stereo and pair rigs: distance between the two cameras, scene units", "range": (0.0, 1e9), "exclusive_min": True})
@@ -78,6 +78,8 @@ def make_scene(name: str, seed: int = 0) -> trimesh.Trimesh:
         return trimesh.Trimesh(v * (1.0 + disp)[:, None], m.faces, process=False)
     if name == "knot":
         return _torus_knot()
+    if name == "relief":
+        return relief_sphere(seed)
     if name == "room":
         parts = []
         floor = trimesh.creation.box(extents=(2.4, 2.4, 0.05))
@@ -107,6 +109,25 @@ def make_scene(name: str, seed: int = 0) -> trimesh.Trimesh:
             parts.append(w)
         return trimesh.util.concatenate(parts)
     raise BadArgumentError(f"scene: expected one of {SCENES}, got {name!r}")
+
+
+def relief_sphere(seed: int = 0, bumps: int = 600, height: float = 0.002, sigma: float = 0.03,
+                  subdivisions: int = 7) -> trimesh.Trimesh:
+    """A unit sphere with ``bumps`` Gaussian bumps (``height`` high, ``sigma`` wide, scene units) at random
+    places: relief below a pixel's footprint (at the default 640-pixel, 50-degree rig, 3 units out, a pixel
+    covers about 0.003 on the surface), wide enough (about 20 footprints) for the photos to show it."""
+    from scipy.spatial import cKDTree
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    v = np.asarray(m.vertices, float)
+    rng = np.random.default_rng(seed + 23)
+    c = rng.normal(size=(bumps, 3))
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+    r = np.zeros(len(v))
+    for i, nb in enumerate(cKDTree(v).query_ball_point(c, 4 * sigma)):
+        nb = np.asarray(nb, int)
+        r[nb] += height * np.exp(-np.sum((v[nb] - c[i]) ** 2, axis=1) / (2 * sigma ** 2))
+    return trimesh.Trimesh(v * (1.0 + r)[:, None], m.faces, process=False)
 
 
 def _torus_knot(p: int = 2, q: int = 3, n_seg: int = 600, n_ring: int = 24, tube: float = 0.16) -> trimesh.Trimesh:

@@ -468,7 +468,7 @@ def _add_stage_args(p):
 
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
-                       ("fusion", d.fusion), ("cleaning", d.clean), ("metric scale", d.scale),
+                       ("fusion", d.fusion), ("cleaning", d.clean), ("refinement", d.refine), ("metric scale", d.scale),
                        ("texture (with --texture)", d.texture), ("cluster (Dask)", d.cluster)):
         add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg)
 
@@ -496,13 +496,15 @@ def _run_reconstruct(args):
     from ..pipeline import ReconstructConfig, StageConfigs, reconstruct as run
     from ..poses.scale import ScaleConfig
     from ..poses.sfm import SfMConfig
+    from ..mesh.refine import RefineConfig
     from ..mesh.texture import TextureConfig
 
     _apply_quality(args)
     cfgs = StageConfigs(config_from_args(ReconstructConfig, args), config_from_args(SfMConfig, args),
                         config_from_args(MVSConfig, args), config_from_args(FusionConfig, args),
                         config_from_args(CleanConfig, args), config_from_args(ScaleConfig, args),
-                        config_from_args(TextureConfig, args), config_from_args(ClusterConfig, args))
+                        config_from_args(TextureConfig, args), config_from_args(ClusterConfig, args),
+                        config_from_args(RefineConfig, args))
     rep = run(args.images, args.out, cfgs, force=args.force, overwrite=args.overwrite)
     p, d, m = rep.poses, rep.depth, rep.mesh
     print(f"reconstruct: {p.get('registered')} images registered, {d.get('views')} depth maps ({d.get('source')}), "
