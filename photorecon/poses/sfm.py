@@ -47,6 +47,9 @@ def _pycolmap():
 # incremental mapping with every matching (0.057-0.076 deg vs 0.078-0.102) at 0.9-1.7x its time (bench_sfm.py --large)
 GLOBAL_MIN = 200
 
+# --matching retrieval: photos retrieved per photo (--retrieval-neighbors)
+RETRIEVAL_NEIGHBORS = 12
+
 
 @dataclass
 class SfMConfig:
@@ -66,8 +69,9 @@ class SfMConfig:
     low_contrast_peak: float = field(default=0.002, metadata={"help": "when fewer than 3/4 of the images register: SIFT again with this peak (contrast) threshold, for grey or low-contrast photos (COLMAP's default 0.0067; 0 = off)", "range": (0, 1)})
     affine_sift: bool = field(default=True, metadata={"help": "estimate affine feature shapes: longer tracks across oblique views"})
     dsp_sift: bool = field(default=False, metadata={"help": "domain-size pooling SIFT descriptors (slower extraction, sometimes more accurate)"})
-    matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair, file-name neighbours (videos), or nearest by GPS; auto: exhaustive up to --exhaustive-max images"})
+    matching: Literal["auto", "exhaustive", "retrieval", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair; retrieval: the --retrieval-neighbors most similar photos per photo (a visual index of the photos' own features) and loop-closing pairs; file-name neighbours (videos); or nearest by GPS. auto: exhaustive up to --exhaustive-max images, above it sequential for a video, spatial when every photo carries GPS, else retrieval"})
     exhaustive_max: int = field(default=80, metadata={"help": "largest image count --matching auto matches exhaustively", "range": (0, 1_000_000)})
+    retrieval_neighbors: int = field(default=RETRIEVAL_NEIGHBORS, metadata={"help": "retrieval matching: most similar photos matched per photo (then up to half as many loop-closing pairs per photo)", "range": (1, 100_000)})
     sequential_overlap: int = field(default=10, metadata={"help": "sequential matching: neighbours per image in file-name order", "range": (1, 100_000)})
     sequential_loops: bool = field(default=True, metadata={"help": "sequential matching: also match every k-th image with every other k-th one (k = --sequential-overlap), which closes loops"})
     spatial_neighbors: int = field(default=20, metadata={"help": "spatial matching: nearest photos by EXIF GPS per photo", "range": (1, 100_000)})
@@ -217,18 +221,20 @@ def gps_priors(database: Path) -> int:
         db.close()
 
 
-def choose_matching(cfg: SfMConfig, num_images: int, with_gps: int = 0) -> str:
-    """``cfg.matching``, or for ``auto``: exhaustive up to ``cfg.exhaustive_max`` images, above it spatial when
-    every image has a GPS prior (``with_gps`` of them), else sequential. Raises ``BadArgumentError`` for
-    ``spatial`` with fewer than 2 geotagged images."""
+def choose_matching(cfg: SfMConfig, num_images: int, with_gps: int = 0, video: bool = False) -> str:
+    """``cfg.matching``, or for ``auto``: exhaustive up to ``cfg.exhaustive_max`` images; above it sequential
+    for the frames of a ``video``, spatial when every image has a GPS prior (``with_gps`` of them), else
+    retrieval. Raises ``BadArgumentError`` for ``spatial`` with fewer than 2 geotagged images."""
     if cfg.matching == "spatial" and with_gps < 2:
         raise BadArgumentError(f"--matching spatial: {with_gps} of {num_images} photos carry EXIF GPS; "
-                               "use --matching sequential (ordered captures) or exhaustive")
+                               "use --matching retrieval (unordered photos), sequential (ordered captures) or exhaustive")
     if cfg.matching != "auto":
         return cfg.matching
     if num_images <= cfg.exhaustive_max:
         return "exhaustive"
-    return "spatial" if with_gps >= num_images else "sequential"
+    if video:
+        return "sequential"
+    return "spatial" if with_gps >= num_images else "retrieval"
 
 
 def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
@@ -239,10 +245,14 @@ def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
 
 def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided: bool = False) -> Path:
     """Match the features of the ``features`` database into a copy of it, ``database``; ``matching``:
-    exhaustive, sequential (file-name order; loops closed by matching keyframes, ``_match_keyframes``, since
-    COLMAP's loop detection needs a vocabulary tree, a download) or spatial (nearest by the GPS position priors
-    COLMAP read from EXIF). ``guided``: matches are searched again along the verified two-view geometry (small
-    photos: 12 views of the blob at 320x240, the weakest pair's inliers 16 -> 39)."""
+    exhaustive, retrieval (the most similar photos by a visual index of the photos' own features, plus
+    loop-closing pairs: ``retrieval.match_retrieval``), sequential (file-name order; loops closed by matching
+    keyframes, ``_match_keyframes``, since COLMAP's loop detection needs a vocabulary tree, a download) or
+    spatial (nearest by the GPS position priors COLMAP read from EXIF). ``guided``: matches are searched again
+    along the verified two-view geometry (small photos: 12 views of the blob at 320x240, the weakest pair's
+    inliers 16 -> 39)."""
+    from .retrieval import match_retrieval
+
     pycolmap = _pycolmap()
     check_space(database, 2 * features.stat().st_size + MB)  # a copy of the features, then the matches
     with atomic_path(database) as tmp:
@@ -252,6 +262,8 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
         mopt.guided_matching = guided
         if matching == "exhaustive":
             pycolmap.match_exhaustive(str(tmp), matching_options=mopt, device=pycolmap.Device.cpu)
+        elif matching == "retrieval":
+            match_retrieval(tmp, cfg.retrieval_neighbors, mopt, cfg.seed, cfg.threads)
         elif matching == "spatial":
             popt = pycolmap.SpatialPairingOptions()
             popt.max_num_neighbors = cfg.spatial_neighbors
@@ -274,26 +286,16 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
 def _match_keyframes(database: Path, every: int, mopt) -> int:
     """Loop closure for sequential matching: every ``every``-th image in name order (sequential's order) matched
     with every other one not already matched with it. Returns the number of pairs added."""
+    from .retrieval import match_pairs
+
     pycolmap = _pycolmap()
     db = pycolmap.Database.open(str(database))
     try:
         names = sorted(im.name for im in db.read_all_images())
-        key = names[::every]
-        pairs = [(a, b) for i, a in enumerate(key) for b in key[i + 1:]]
     finally:
         db.close()
-    if not pairs:
-        return 0
-    with tempfile.NamedTemporaryFile("w", suffix=".txt", dir=database.parent, delete=False) as f:
-        f.write("".join(f"{a} {b}\n" for a, b in pairs))
-    try:
-        popt = pycolmap.ImportedPairingOptions()
-        popt.match_list_path = f.name
-        pycolmap.match_image_pairs(str(database), matching_options=mopt, pairing_options=popt,
-                                   device=pycolmap.Device.cpu)
-    finally:
-        Path(f.name).unlink(missing_ok=True)
-    return len(pairs)
+    key = names[::every]
+    return match_pairs(database, [(a, b) for i, a in enumerate(key) for b in key[i + 1:]], mopt)
 
 
 # The second SIFT pass with a lower contrast threshold runs when fewer than this fraction of the images register
@@ -517,14 +519,15 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         ext = stages.run(f"extraction{suffix}", {"cameras": cams, "sift": sift, "masks": masks and fingerprint(masks)},
                          extraction, outputs=[features, work_masks], optional=[work_masks])
         with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
-        matching = choose_matching(cfg, len(names), with_gps)
+        matching = choose_matching(cfg, len(names), with_gps, video=src.is_file())
         if matching == "spatial" and with_gps < len(names) and not suffix:
             log.warning("--matching spatial: %d of %d photos carry no EXIF GPS and get no pairs",
                         len(names) - with_gps, len(names))
         guided = any(c["sift_upscale"] > 1 for c in cams)  # the extraction's settings: a change re-runs matching
         pairing = {"sequential": {"overlap": cfg.sequential_overlap, "loops": cfg.sequential_loops},
                    "spatial": {"neighbors": cfg.spatial_neighbors, "max_distance": cfg.spatial_max_distance,
-                               "ignore_z": cfg.spatial_ignore_z}}.get(matching)
+                               "ignore_z": cfg.spatial_ignore_z},
+                   "retrieval": {"neighbors": cfg.retrieval_neighbors, "seed": cfg.seed}}.get(matching)
         stages.run(f"matching{suffix}", {"matching": matching, "pairing": pairing},
                    lambda: match(features, database, matching, cfg, guided), outputs=[database])
         stages.run(f"mapping{suffix}", {"mapper": mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
