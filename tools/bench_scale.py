@@ -5,7 +5,7 @@ cameras; end to end (``--e2e``) also depth views and faces.
 
 Sets (``--only`` picks some, comma-separated):
 
-* ``gold_cape``: ../shared/data/gold_cape, 119 real handheld photos (unordered), reference cameras in
+* ``gold_cape``: ../shared/data/gold_cape (or $PHOTORECON_DATA/gold_cape), 119 real handheld photos (unordered), reference cameras in
   ``reference/`` (COLMAP text);
 * ``unorderedN`` (``unordered100``, ``unordered200``, ``unordered500``; any N): N views of the synthetic blob
   on a sphere at 640x480 (``--size``), 3 degrees of rotation jitter, saved under shuffled file names
@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-GOLD_CAPE = ROOT / "../shared/data/gold_cape"
+DATA = Path(os.environ.get("PHOTORECON_DATA", ROOT / "../shared/data"))  # the shared benchmark data
+GOLD_CAPE = DATA / "gold_cape"
 DEFAULT_SETS = "gold_cape,unordered100,unordered200,unordered500"
 
 
@@ -46,8 +47,9 @@ def unordered_set(n: int, size: str, data: Path) -> tuple[Path, list]:
     root = data / f"unordered{n}_{w}x{h}"
     synth, photos = root / "synth", root / "photos"
     if not (root / "names.json").is_file():
-        synthesize(SynthConfig(scene="blob", rig="sphere", views=n, width=w, height=h, points=0, seed=3,
-                               jitter_deg=3.0), synth, overwrite=True)
+        if not (synth / "sparse" / "0").is_dir():  # rendered before: kept
+            synthesize(SynthConfig(scene="blob", rig="sphere", views=n, width=w, height=h, points=0, seed=3,
+                                   jitter_deg=3.0), synth, overwrite=True)
         perm = np.random.default_rng(n).permutation(n)
         names = {}
         shutil.rmtree(photos, ignore_errors=True)
