@@ -98,11 +98,11 @@ def test_sift_from_the_image_size_keeps_the_features_and_the_registration(sphere
     photos = tmp_path / "photos"
     photos.mkdir()
     ref = read_model(sphere30 / "sparse" / "0").views[:10]
-    for v in ref:  # 1280x960 copies of 10 neighbouring views
+    for v in ref:  # 960x720 copies of 10 neighbouring views
         img = cv2.imread(str(sphere30 / "images" / v.image_file))
-        cv2.imwrite(str(photos / v.image_file), cv2.resize(img, (1280, 960), interpolation=cv2.INTER_CUBIC))
+        cv2.imwrite(str(photos / v.image_file), cv2.resize(img, (960, 720), interpolation=cv2.INTER_CUBIC))
     cfg = SfMConfig(max_features=1024, matching="exhaustive")
-    assert sift_first_octave(1280, 960, cfg.max_image_size, cfg.max_features) == 0
+    assert sift_first_octave(960, 720, cfg.max_image_size, cfg.max_features) == 0
     found = {}
     for label, per_feature in (("octave0", sfm.OCTAVE0_PIXELS_PER_FEATURE), ("upsampled", 10**9)):
         monkeypatch.setattr(sfm, "OCTAVE0_PIXELS_PER_FEATURE", per_feature)
