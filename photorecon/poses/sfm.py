@@ -1,10 +1,11 @@
-"""Structure from motion through pycolmap (with ``io.colmap`` and ``triangulate``, the only modules that import it; its API changes
+"""Structure from motion through pycolmap (with ``io.colmap``, ``triangulate`` and ``retrieval``, the only modules that import it; its API changes
 between versions; pycolmap 4.x: ``image.cam_from_world()`` is a method).
 
 Stages, each a function that writes one output and returns its path (hloc's style), run by the stage runner
 (``photorecon.stages``) so that a re-run reuses a stage while its inputs and settings are unchanged:
 ingest (oriented copies of the images, ``OUT/colmap/images``) -> ``extract`` (SIFT, ``OUT/colmap/features.db``)
--> ``match`` (exhaustive / sequential / spatial by EXIF GPS, chosen by count and GPS; ``OUT/colmap/database.db``)
+-> ``match`` (exhaustive / retrieval (``retrieval.py``) / sequential / spatial by EXIF GPS, chosen by count, video and GPS;
+``OUT/colmap/database.db``)
 -> ``map`` (incremental, or global (GLOMAP) for large sets; the largest model, ``OUT/colmap/sparse``) -> ``undistort`` to pinhole images. Outputs in the synth
 layout: ``OUT/images/`` (undistorted), ``OUT/sparse/0/`` (COLMAP text, pinhole) and ``OUT/transforms.json``.
 Masks (a user's folder, else the images' alpha) go to extraction as ``OUT/colmap/masks/NAME.EXT.png`` (COLMAP's
