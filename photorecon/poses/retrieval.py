@@ -36,6 +36,16 @@ def _pycolmap():
     return load()
 
 
+def database_images(database: Path) -> dict[int, str]:
+    """The images of a COLMAP database: {image id: name}."""
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(database))
+    try:
+        return {im.image_id: im.name for im in db.read_all_images()}
+    finally:
+        db.close()
+
+
 def visual_words(num_images: int) -> int:
     """Visual words of the index for ``num_images`` photos: 1024 up to 200 photos, more for larger sets (about
     8 per photo, at most 8192), so that a word still separates places on the object."""
@@ -139,11 +149,7 @@ def match_pairs(database: Path, pairs, mopt) -> int:
     if not pairs:
         return 0
     if not isinstance(pairs[0][0], str):
-        db = pycolmap.Database.open(str(database))
-        try:
-            names = {im.image_id: im.name for im in db.read_all_images()}
-        finally:
-            db.close()
+        names = database_images(database)
         pairs = [(names[a], names[b]) for a, b in pairs]
     with tempfile.NamedTemporaryFile("w", suffix=".txt", dir=database.parent, delete=False) as f:
         f.write("".join(f"{a} {b}\n" for a, b in pairs))
@@ -160,12 +166,7 @@ def match_pairs(database: Path, pairs, mopt) -> int:
 def match_retrieval(database: Path, k: int, mopt, seed: int = 0, threads: int = -1) -> dict:
     """Retrieval matching of the photos in the COLMAP ``database`` (features extracted, nothing matched yet;
     see the module docstring). Returns what was done: pairs per round and photos without any verified pair."""
-    pycolmap = _pycolmap()
-    db = pycolmap.Database.open(str(database))
-    try:
-        ids = sorted(im.image_id for im in db.read_all_images())
-    finally:
-        db.close()
+    ids = sorted(database_images(database))
     with tempfile.TemporaryDirectory(dir=database.parent, prefix=".index") as tmp:
         index = build_index(database, Path(tmp) / "index.bin", seed, threads)
         tried = retrieval_pairs(database, index, k, threads)

@@ -304,15 +304,9 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
 def _match_keyframes(database: Path, every: int, mopt) -> int:
     """Loop closure for sequential matching: every ``every``-th image in name order (sequential's order) matched
     with every other one not already matched with it. Returns the number of pairs added."""
-    from .retrieval import match_pairs
+    from .retrieval import database_images, match_pairs
 
-    pycolmap = _pycolmap()
-    db = pycolmap.Database.open(str(database))
-    try:
-        names = sorted(im.name for im in db.read_all_images())
-    finally:
-        db.close()
-    key = names[::every]
+    key = sorted(database_images(database).values())[::every]
     return match_pairs(database, [(a, b) for i, a in enumerate(key) for b in key[i + 1:]], mopt)
 
 
