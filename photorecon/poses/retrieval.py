@@ -47,8 +47,9 @@ def database_images(database: Path) -> dict[int, str]:
 
 
 def visual_words(num_images: int) -> int:
-    """Visual words of the index for ``num_images`` photos: 1024 up to 200 photos, more for larger sets (about
-    8 per photo, at most 8192), so that a word still separates places on the object."""
+    """Visual words of the index for ``num_images`` photos: 1024 up to 128 photos, more for larger sets (about
+    8 per photo, at most 8192), so that a word still separates places on the object; ``build_index`` takes
+    fewer where its sample of descriptors is too small to train them."""
     return int(min(8192, max(1024, 1 << int(np.ceil(np.log2(max(1, num_images) * 8))))))
 
 
@@ -70,7 +71,8 @@ def build_index(database: Path, path: Path, seed: int = 0, threads: int = -1) ->
     finally:
         db.close()
     sample = np.concatenate(parts).astype(np.float32) if parts else np.zeros((0, 128), np.float32)
-    words = min(visual_words(len(ids)), max(16, len(sample) // 8))
+    # k-means (FAISS) wants at least 39 training descriptors per word
+    words = min(visual_words(len(ids)), 1 << int(np.log2(max(64, len(sample) // 39))))
     index = pycolmap.VisualIndex.create(128, 64)
     opt = pycolmap.VisualIndex.BuildOptions()
     opt.num_visual_words = words
