@@ -338,14 +338,18 @@ def test_reconstruct_reruns_sfm_with_new_intrinsics(ring_tiny, tmp_path):
     assert before.fx != pytest.approx(300, abs=1)
 
 
-def test_choice_of_matching_and_mapper_by_count_and_gps():
+def test_choice_of_matching_and_mapper_by_count_video_and_gps():
     from photorecon.errors import BadArgumentError
     from photorecon.poses.sfm import choose_mapper, choose_matching
 
     cfg = SfMConfig(exhaustive_max=80, global_min=500)
     assert choose_matching(cfg, 80, 0) == "exhaustive" and choose_matching(cfg, 80, 80) == "exhaustive"
+    assert choose_matching(cfg, 80, 0, video=True) == "exhaustive"
     assert choose_matching(cfg, 81, 81) == "spatial"  # every photo geotagged
-    assert choose_matching(cfg, 81, 80) == "sequential"  # one without GPS: it would get no pairs
+    assert choose_matching(cfg, 81, 80) == "retrieval"  # one without GPS: it would get no spatial pairs
+    assert choose_matching(cfg, 81, 0) == "retrieval"  # an unordered set: file names say nothing
+    assert choose_matching(cfg, 81, 0, video=True) == "sequential"  # frames in capture order
+    assert choose_matching(SfMConfig(matching="retrieval"), 10, 10) == "retrieval"
     assert choose_matching(SfMConfig(matching="exhaustive"), 5000, 5000) == "exhaustive"
     with pytest.raises(BadArgumentError, match="1 of 90 photos carry EXIF GPS"):
         choose_matching(SfMConfig(matching="spatial"), 90, 1)

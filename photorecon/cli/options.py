@@ -59,7 +59,7 @@ SHORT_HELP: dict[str, str] = {
     "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
     "--texture": "also bake a UV-textured mesh from the photos (OUT/textured/)",
     "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
-    "--matching": "image pairs to match: auto, exhaustive, sequential, spatial (default: auto)",
+    "--matching": "image pairs to match: auto, exhaustive, retrieval, sequential, spatial (default: auto)",
     "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",
     "--mvs": "patchmatch (default) or sweep (a plane sweep: a rough preview, far less accurate)",
     "--min-confidence": "drop depths below this confidence, 0..1 (default: 0.2)",

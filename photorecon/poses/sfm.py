@@ -1,10 +1,11 @@
-"""Structure from motion through pycolmap (with ``io.colmap`` and ``triangulate``, the only modules that import it; its API changes
+"""Structure from motion through pycolmap (with ``io.colmap``, ``triangulate`` and ``retrieval``, the only modules that import it; its API changes
 between versions; pycolmap 4.x: ``image.cam_from_world()`` is a method).
 
 Stages, each a function that writes one output and returns its path (hloc's style), run by the stage runner
 (``photorecon.stages``) so that a re-run reuses a stage while its inputs and settings are unchanged:
 ingest (oriented copies of the images, ``OUT/colmap/images``) -> ``extract`` (SIFT, ``OUT/colmap/features.db``)
--> ``match`` (exhaustive / sequential / spatial by EXIF GPS, chosen by count and GPS; ``OUT/colmap/database.db``)
+-> ``match`` (exhaustive / retrieval (``retrieval.py``) / sequential / spatial by EXIF GPS, chosen by count, video and GPS;
+``OUT/colmap/database.db``)
 -> ``map`` (incremental, or global (GLOMAP) for large sets; the largest model, ``OUT/colmap/sparse``) -> ``undistort`` to pinhole images. Outputs in the synth
 layout: ``OUT/images/`` (undistorted), ``OUT/sparse/0/`` (COLMAP text, pinhole) and ``OUT/transforms.json``.
 Masks (a user's folder, else the images' alpha) go to extraction as ``OUT/colmap/masks/NAME.EXT.png`` (COLMAP's
@@ -48,6 +49,9 @@ def _pycolmap():
 # incremental mapping with every matching (0.057-0.076 deg vs 0.078-0.102) at 0.9-1.7x its time (bench_sfm.py --large)
 GLOBAL_MIN = 200
 
+# --matching retrieval: photos retrieved per photo (--retrieval-neighbors)
+RETRIEVAL_NEIGHBORS = 12
+
 
 @dataclass
 class SfMConfig:
@@ -67,8 +71,10 @@ class SfMConfig:
     low_contrast_peak: float = field(default=0.002, metadata={"help": "when fewer than 3/4 of the images register: SIFT again with this peak (contrast) threshold, for grey or low-contrast photos (COLMAP's default 0.0067; 0 = off)", "range": (0, 1)})
     affine_sift: bool = field(default=True, metadata={"help": "estimate affine feature shapes: longer tracks across oblique views"})
     dsp_sift: bool = field(default=False, metadata={"help": "domain-size pooling SIFT descriptors (slower extraction, sometimes more accurate)"})
-    matching: Literal["auto", "exhaustive", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair, file-name neighbours (videos), or nearest by GPS; auto: exhaustive up to --exhaustive-max images"})
-    exhaustive_max: int = field(default=80, metadata={"help": "largest image count --matching auto matches exhaustively", "range": (0, 1_000_000)})
+    wide_baseline_retry: bool = field(default=True, metadata={"help": "when fewer than 9/10 of the images register: SIFT again with domain-size pooling and guided matching (photos far apart, e.g. 30 degrees round a small object)"})
+    matching: Literal["auto", "exhaustive", "retrieval", "sequential", "spatial"] = field(default="auto", metadata={"help": "image pairs matched: every pair; retrieval: the --retrieval-neighbors most similar photos per photo (a visual index of the photos' own features) and loop-closing pairs; file-name neighbours (videos); or nearest by GPS. auto: exhaustive up to --exhaustive-max images, above it sequential for a video, spatial when every photo carries GPS, else retrieval"})
+    exhaustive_max: int = field(default=80, metadata={"help": "largest image count --matching auto matches exhaustively (about where retrieval starts to cost less: docs/benchmarks.md)", "range": (0, 1_000_000)})
+    retrieval_neighbors: int = field(default=RETRIEVAL_NEIGHBORS, metadata={"help": "retrieval matching: most similar photos matched per photo (then up to half as many loop-closing pairs per photo)", "range": (1, 100_000)})
     sequential_overlap: int = field(default=10, metadata={"help": "sequential matching: neighbours per image in file-name order", "range": (1, 100_000)})
     sequential_loops: bool = field(default=True, metadata={"help": "sequential matching: also match every k-th image with every other k-th one (k = --sequential-overlap), which closes loops"})
     spatial_neighbors: int = field(default=20, metadata={"help": "spatial matching: nearest photos by EXIF GPS per photo", "range": (1, 100_000)})
@@ -165,6 +171,21 @@ def _downscale_features(database: Path, names: list[str], s: int, width: int, he
         db.close()
 
 
+# SIFT starts on the image upsampled 2x (first octave -1, COLMAP's default) only where the working image has fewer
+# than this many pixels per feature wanted: above it the octaves from the image's own size already give
+# --max-features, and COLMAP keeps the largest-scale features, so the upsampled octave's are computed to be
+# thrown away (gold_cape, 1600x1600: 8.6k features from octave 0 alone; 3.6 -> 1.3 CPU s per photo).
+OCTAVE0_PIXELS_PER_FEATURE = 250
+
+
+def sift_first_octave(width: int, height: int, max_image_size: int, max_features: int) -> int:
+    """SIFT's first octave for a ``width`` x ``height`` image (before any upsampled copy) worked on at
+    ``max_image_size``: 0 where it has ``OCTAVE0_PIXELS_PER_FEATURE`` pixels per feature of ``max_features``,
+    else -1 (COLMAP's default, the image upsampled 2x first)."""
+    s = min(1.0, max_image_size / max(width, height, 1))
+    return 0 if width * height * s * s >= OCTAVE0_PIXELS_PER_FEATURE * max_features else -1
+
+
 def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfig, mask_dir: Path | None = None) -> Path:
     """SIFT features of the images in ``cameras`` (see ``camera_groups``) into a new COLMAP database; none
     where a mask in ``mask_dir`` (COLMAP's layout, ``write_colmap_masks``) is 0. A camera with ``sift_upscale``
@@ -198,8 +219,9 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
             ext.sift.max_num_features = cfg.max_features
             if cam.get("sift_peak"):
                 ext.sift.peak_threshold = float(cam["sift_peak"])
+            ext.sift.first_octave = sift_first_octave(*cam["size"], cfg.max_image_size, cfg.max_features)
             ext.sift.estimate_affine_shape = cfg.affine_sift
-            ext.sift.domain_size_pooling = cfg.dsp_sift
+            ext.sift.domain_size_pooling = bool(cam.get("dsp_sift", cfg.dsp_sift))
             ext.num_threads = threads
             pycolmap.extract_features(str(tmp), str(src), image_names=cam["images"],
                                       camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
@@ -299,18 +321,20 @@ def gps_priors(database: Path) -> int:
         db.close()
 
 
-def choose_matching(cfg: SfMConfig, num_images: int, with_gps: int = 0) -> str:
-    """``cfg.matching``, or for ``auto``: exhaustive up to ``cfg.exhaustive_max`` images, above it spatial when
-    every image has a GPS prior (``with_gps`` of them), else sequential. Raises ``BadArgumentError`` for
-    ``spatial`` with fewer than 2 geotagged images."""
+def choose_matching(cfg: SfMConfig, num_images: int, with_gps: int = 0, video: bool = False) -> str:
+    """``cfg.matching``, or for ``auto``: exhaustive up to ``cfg.exhaustive_max`` images; above it sequential
+    for the frames of a ``video``, spatial when every image has a GPS prior (``with_gps`` of them), else
+    retrieval. Raises ``BadArgumentError`` for ``spatial`` with fewer than 2 geotagged images."""
     if cfg.matching == "spatial" and with_gps < 2:
         raise BadArgumentError(f"--matching spatial: {with_gps} of {num_images} photos carry EXIF GPS; "
-                               "use --matching sequential (ordered captures) or exhaustive")
+                               "use --matching retrieval (unordered photos), sequential (ordered captures) or exhaustive")
     if cfg.matching != "auto":
         return cfg.matching
     if num_images <= cfg.exhaustive_max:
         return "exhaustive"
-    return "spatial" if with_gps >= num_images else "sequential"
+    if video:
+        return "sequential"
+    return "spatial" if with_gps >= num_images else "retrieval"
 
 
 def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
@@ -321,10 +345,14 @@ def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
 
 def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided: bool = False) -> Path:
     """Match the features of the ``features`` database into a copy of it, ``database``; ``matching``:
-    exhaustive, sequential (file-name order; loops closed by matching keyframes, ``_match_keyframes``, since
-    COLMAP's loop detection needs a vocabulary tree, a download) or spatial (nearest by the GPS position priors
-    COLMAP read from EXIF). ``guided``: matches are searched again along the verified two-view geometry (small
-    photos: 12 views of the blob at 320x240, the weakest pair's inliers 16 -> 39)."""
+    exhaustive, retrieval (the most similar photos by a visual index of the photos' own features, plus
+    loop-closing pairs: ``retrieval.match_retrieval``), sequential (file-name order; loops closed by matching
+    keyframes, ``_match_keyframes``, since COLMAP's loop detection needs a vocabulary tree, a download) or
+    spatial (nearest by the GPS position priors COLMAP read from EXIF). ``guided``: matches are searched again
+    along the verified two-view geometry (small photos: 12 views of the blob at 320x240, the weakest pair's
+    inliers 16 -> 39)."""
+    from .retrieval import match_retrieval
+
     pycolmap = _pycolmap()
     check_space(database, 2 * features.stat().st_size + MB)  # a copy of the features, then the matches
     with atomic_path(database) as tmp:
@@ -337,6 +365,8 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
         if matching == "exhaustive":
             pycolmap.match_exhaustive(str(tmp), matching_options=mopt, verification_options=vopt,
                                       device=pycolmap.Device.cpu)
+        elif matching == "retrieval":
+            match_retrieval(tmp, cfg.retrieval_neighbors, mopt, cfg.seed, cfg.threads, vopt)
         elif matching == "spatial":
             popt = pycolmap.SpatialPairingOptions()
             popt.max_num_neighbors = cfg.spatial_neighbors
@@ -360,32 +390,17 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
 def _match_keyframes(database: Path, every: int, mopt, vopt=None) -> int:
     """Loop closure for sequential matching: every ``every``-th image in name order (sequential's order) matched
     with every other one not already matched with it. Returns the number of pairs added."""
-    pycolmap = _pycolmap()
-    db = pycolmap.Database.open(str(database))
-    try:
-        names = sorted(im.name for im in db.read_all_images())
-        key = names[::every]
-        pairs = [(a, b) for i, a in enumerate(key) for b in key[i + 1:]]
-    finally:
-        db.close()
-    if not pairs:
-        return 0
-    with tempfile.NamedTemporaryFile("w", suffix=".txt", dir=database.parent, delete=False) as f:
-        f.write("".join(f"{a} {b}\n" for a, b in pairs))
-    try:
-        popt = pycolmap.ImportedPairingOptions()
-        popt.match_list_path = f.name
-        pycolmap.match_image_pairs(str(database), matching_options=mopt, pairing_options=popt,
-                                   verification_options=vopt or pycolmap.TwoViewGeometryOptions(),
-                                   device=pycolmap.Device.cpu)
-    finally:
-        Path(f.name).unlink(missing_ok=True)
-    return len(pairs)
+    from .retrieval import database_images, match_pairs
+
+    key = sorted(database_images(database).values())[::every]
+    return match_pairs(database, [(a, b) for i, a in enumerate(key) for b in key[i + 1:]], mopt, vopt)
 
 
 # The second SIFT pass with a lower contrast threshold runs when fewer than this fraction of the images register
 # (a few unrelated photos among many do not cost a second extraction and matching).
 LOW_CONTRAST_RETRY_BELOW = 0.75
+# ... and the wide-baseline pass (domain-size pooling, guided matching) when fewer than this fraction register
+WIDE_BASELINE_RETRY_BELOW = 0.9
 
 # Incremental mapping tried again with these thresholds, one set after the other, while a model leaves images
 # out: COLMAP's defaults ignore two-view tracks and want 100 inliers to start and 30 to register, too many for
@@ -585,6 +600,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
 
     cameras = camera_groups(images, cfg)
     sift = {k: getattr(cfg, k) for k in ("max_image_size", "max_features", "affine_sift", "dsp_sift")}
+    sift["octave0_pixels_per_feature"] = OCTAVE0_PIXELS_PER_FEATURE
     work_masks = work / "masks"
     fixed = _given_intrinsics(cfg, images[0].width, images[0].height) is not None and not cfg.refine_intrinsics
     mapper = choose_mapper(cfg, len(names))
@@ -604,14 +620,16 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         ext = stages.run(f"extraction{suffix}", {"cameras": cams, "sift": sift, "masks": masks and fingerprint(masks)},
                          extraction, outputs=[features, work_masks], optional=[work_masks])
         with_gps = gps_priors(features) if cfg.matching in ("auto", "spatial") and len(names) > 2 else 0
-        matching = choose_matching(cfg, len(names), with_gps)
+        matching = choose_matching(cfg, len(names), with_gps, video=src.is_file())
         if matching == "spatial" and with_gps < len(names) and not suffix:
             log.warning("--matching spatial: %d of %d photos carry no EXIF GPS and get no pairs",
                         len(names) - with_gps, len(names))
-        guided = any(c["sift_upscale"] > 1 for c in cams)  # the extraction's settings: a change re-runs matching
+        # the extraction's settings: a change re-runs matching
+        guided = any(c["sift_upscale"] > 1 or c.get("guided") for c in cams)
         pairing = {"sequential": {"overlap": cfg.sequential_overlap, "loops": cfg.sequential_loops},
                    "spatial": {"neighbors": cfg.spatial_neighbors, "max_distance": cfg.spatial_max_distance,
-                               "ignore_z": cfg.spatial_ignore_z}}.get(matching)
+                               "ignore_z": cfg.spatial_ignore_z},
+                   "retrieval": {"neighbors": cfg.retrieval_neighbors}}.get(matching)
         stages.run(f"matching{suffix}", {"matching": matching, "pairing": pairing, "seed": cfg.seed},
                    lambda: match(features, database, matching, cfg, guided), outputs=[database])
         stages.run(f"mapping{suffix}", {"mapper": mapper, "seed": cfg.seed, "fixed_intrinsics": fixed},
@@ -625,7 +643,9 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     # A pass that leaves images out is followed by SIFT again on the small photos upsampled 2x (guided
     # matching), then, while fewer than LOW_CONTRAST_RETRY_BELOW register, with a lower contrast threshold (a
     # ring of 12 grey 1280x1024 photos of a small object: 1.7k -> 6.9k features per image, 25-90 -> 100-200
-    # inliers between neighbours). The pass that registers the most images is kept.
+    # inliers between neighbours), then, while fewer than WIDE_BASELINE_RETRY_BELOW register, with the best
+    # pass's settings plus domain-size pooled descriptors and guided matching (a dark walnut ring, 30 degrees
+    # between cameras: 0-40 -> 44-146 inliers between neighbours). The pass that registers the most images is kept.
     best: tuple | None = None  # (model_dir, extraction record, matching, photos with GPS, cameras, registered)
     error: SfMError | None = None
 
@@ -653,6 +673,10 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
         log.info("%d of %d images registered; SIFT again with a lower contrast threshold (%g)",
                  n_registered(), len(names), cfg.low_contrast_peak)
         attempt([dict(c, sift_peak=cfg.low_contrast_peak) for c in (best[4] if best else cameras)], "_lowcontrast")
+    if cfg.wide_baseline_retry and n_registered() < WIDE_BASELINE_RETRY_BELOW * len(names):
+        log.info("%d of %d images registered; SIFT again with domain-size pooling, matched guided (wide baselines)",
+                 n_registered(), len(names))
+        attempt([dict(c, dsp_sift=True, guided=True) for c in (best[4] if best else cameras)], "_widebaseline")
     if best is None:
         raise error or SfMError(f"0 of {len(names)} images registered: no two images could be matched into a "
                                 "model (do the photos overlap? are they all identical?)")
