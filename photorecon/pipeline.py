@@ -168,12 +168,12 @@ def _undistort_given(model, images_dir: Path, out: Path, masks_dir: Path | None 
 
 
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
-                 executor=None):
-    """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``.
-    Returns the mesh and its facts (``fusion.fuse_to_files``)."""
+                 executor=None, views=None):
+    """``reconstruct``'s fusion stage: the dataset's depth maps (of ``views``, default all) -> fused, cleaned
+    mesh -> ``layout.mesh(fmt)``. Returns the mesh and its facts (``fusion.fuse_to_files``)."""
     from .fusion import fuse_to_files, load_frames
 
-    frames = load_frames(ds, fusion_cfg)
+    frames = load_frames(ds, fusion_cfg, views)
     return fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor, ds,
                          work_dir)
 
@@ -301,6 +301,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                 elif source == "mvs":
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
+                            "depth_views": rep["depth_views"],
                             "seconds_per_view": rep["seconds_per_view"],
                             "triangulation_seconds": rep["triangulation_seconds"]}
                     written = sorted(rep["per_view"])
@@ -325,8 +326,10 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         fused = {}
 
         def fusion() -> dict:
+            # MVS writes depth maps for the views it chose (--depth-views) and could match: those are fused
+            views = [v for v in ds.views if ds.has_depth(v)] if source == "mvs" else None
             fused["mesh"], info = fusion_stage(ds, cfgs.fusion, cfgs.clean, layout, formats, work / "fusion",
-                                               executor())
+                                               executor(), views)
             return info
 
         def preview() -> None:

@@ -19,8 +19,8 @@ from ..resources import release_memory
 from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
                       tsdf_fuse_chunked)
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
-from .frames import (_resize_to, _sample_depth_points, depth_view, load_frame, load_frames, pixel_footprint,
-                     prepare_depth, scene_diagonal)
+from .frames import (FrameStore, _resize_to, _sample_depth_points, depth_view, full_frame, load_frame, load_frames,
+                     nonempty, pixel_footprint, prepare_depth, scene_diagonal)
 from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
 from .legacy import legacy_article_fuse
 from .points import _area_samples, _point_cloud, observed_distance, observed_points, oriented_points, surface_report
@@ -92,7 +92,8 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     from ..mesh import clean_open3d, export, to_open3d
 
     fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
-    frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
+    if isinstance(frames, list):
+        frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
     if not len(fused.faces):
         raise EmptyMeshError("the mesh has no triangle")
     m, metadata = to_open3d(fused), dict(fused.metadata)

@@ -27,7 +27,7 @@ from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
 from ..progress import bar
 from ..resources import available_bytes, release_memory
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
-from .frames import _sample_depth_points, pixel_footprint, scene_diagonal
+from .frames import _sample_depth_points, full_frame, nonempty, pixel_footprint, scene_diagonal
 from .grid import _cell_keys
 
 log = logging.getLogger("photorecon")
@@ -423,8 +423,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     lies in its core: the same voxels, values and triangles as one grid (``tsdf_fuse_chunked`` does the same
     from disk, one task per chunk). Memory: the frames, one chunk's grid and the mesh, whatever the scene's
     extent."""
-    frames = [f for f in frames if np.count_nonzero(f.depth)]
-    if not frames:
+    frames = nonempty(frames)
+    if not len(frames):
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
     budget = cfg.grid_budget_gb * (1 << 30) if cfg.grid_budget_gb else 0
     # chunks bound the grid, so an automatic voxel (bounded by the depth maps' pixel footprint) is not
@@ -436,7 +436,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     depth_max = _depth_max(frames, trunc)
     probe = _new_grid(voxel, 64)
     plans = []  # per frame: (coords, planar-normal mask or None, weighted)
-    for f in bar(frames, desc="tsdf blocks"):
+    for i in bar(range(len(frames)), desc="tsdf blocks"):
+        f = full_frame(frames, i)
         g, coords, weighted = _frame_blocks(probe, f, cfg, voxel, depth_max)
         keep = None
         if g.normal is not None and g.normal is not f.normal:
@@ -460,11 +461,13 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         if count is None:
             count = int(_in_box(allb, lo - 1, hi + 1).sum())
         vbg = _new_grid(voxel, int(count * 1.05) + 64)
-        for f, (coords, keep, weighted) in zip(bar(frames, desc="tsdf fusion") if not chunk else frames, plans):
+        for i in bar(range(len(frames)), desc="tsdf fusion") if not chunk else range(len(frames)):
+            coords, keep, weighted = plans[i]
             if lo is not None:
                 coords = coords[_in_box(coords, lo - 1, hi + 1)]
                 if not len(coords):
                     continue
+            f = full_frame(frames, i)
             if keep is not None:
                 mask = np.unpackbits(keep, count=f.depth.size).reshape(f.depth.shape).astype(bool)
                 f = replace(f, normal=np.where(mask[..., None], np.asarray(f.normal, np.float32), np.float32(0)))
