@@ -171,9 +171,9 @@ def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, format
                  executor=None, views=None):
     """``reconstruct``'s fusion stage: the dataset's depth maps (of ``views``, default all) -> fused, cleaned
     mesh -> ``layout.mesh(fmt)``. Returns the mesh and its facts (``fusion.fuse_to_files``)."""
-    from .fusion import fuse_to_files, load_frames
+    from .fusion import frames_hold_bytes, fuse_to_files, load_frames
 
-    frames = load_frames(ds, fusion_cfg, views)
+    frames = load_frames(ds, fusion_cfg, views, frames_hold_bytes(fusion_cfg))
     return fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor, ds,
                          work_dir)
 

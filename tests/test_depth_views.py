@@ -87,3 +87,28 @@ def test_views_without_points_are_kept(renderer):
     assert "lonely" in choice.chosen and len(choice.chosen) < 61
     no_points = replace(model, points=np.zeros((0, 3)), observations={})
     assert choose_depth_views(no_points, MVSConfig()).reason == "no sparse points"
+
+
+def test_depth_stage_and_fusion_use_only_the_chosen_views(tmp_path):
+    """48 views of one object: the depth stage writes depth maps for the chosen views only (the report says how
+    many of how many), and fusing those gives the object's surface."""
+    from photorecon.depth.mvs import run_mvs
+    from photorecon.fusion import FusionConfig, fuse, load_frames
+    from photorecon.io.dataset import Dataset
+    from photorecon.metrics import mesh_metrics
+    from photorecon.synthetic import synthesize
+
+    data = tmp_path / "data"
+    synthesize(SynthConfig(scene="blob", views=48, width=80, height=60, points=1500, seed=2), data)
+    ds = Dataset.open(data)
+    cfg = MVSConfig(method="sweep", n_sources=4, n_depths=48, min_consistent=1, min_confidence=0.5)
+    chosen = set(choose_depth_views(ds.model, cfg).chosen)
+    rep = run_mvs(ds, tmp_path / "depth", cfg)
+    assert rep.depth_views["of"] == 48 and rep.depth_views["chosen"] == len(chosen) <= 36
+    written = {p.name[:-4] for p in (tmp_path / "depth").glob("*.npy") if p.name.count(".") == 1}
+    assert written <= chosen and len(written) >= 0.9 * len(chosen) and rep.views == len(written)
+    dsd = Dataset.open(data, depth_dir=tmp_path / "depth")
+    frames = load_frames(dsd, FusionConfig(), [v for v in dsd.views if dsd.has_depth(v)])
+    m = mesh_metrics(fuse(frames, FusionConfig(trunc_voxels=3.0), dsd.model.points),
+                     __import__("trimesh").load(data / "gt_mesh.ply", process=False), n_samples=20_000)
+    assert m.fscore >= 0.9, m

@@ -53,3 +53,26 @@ class DepthFrame:
     color: np.ndarray | None = None
     confidence: np.ndarray | None = None
     normal: np.ndarray | None = None  # (H, W, 3) unit normals in the camera frame (OpenCV axes), 0 = none
+
+
+# The shares of ``FusionConfig.memory_gb`` (the fusion's budget): the depth frames held at once (more are read
+# one at a time), the voxel grid held at once (more is fused in chunks), and the mesh (more coarsens the voxel).
+BUDGET_SHARES = {"frames": 0.25, "grid": 0.25, "mesh": 0.5}
+
+
+def budget_share(cfg: FusionConfig, part: str) -> float:
+    """Bytes of the fusion's memory budget for ``part`` (``BUDGET_SHARES``); 0 without a budget. The grid's
+    share is at most ``cfg.grid_budget_gb`` (0 there: one grid, whatever its size)."""
+    share = BUDGET_SHARES[part] * cfg.memory_gb * (1 << 30) if cfg.memory_gb else 0.0
+    if part == "grid":
+        grid = cfg.grid_budget_gb * (1 << 30) if cfg.grid_budget_gb else 0.0
+        return min(share, grid) if share and grid else grid
+    return share
+
+
+def frames_hold_bytes(cfg: FusionConfig) -> float | None:
+    """What ``load_frames`` may hold in memory before it reads the frames one at a time (TSDF fusion, which
+    streams them); None: no limit (the other meshers keep every frame)."""
+    if cfg.mesher != "tsdf" or cfg.watertight or not cfg.memory_gb:
+        return None
+    return budget_share(cfg, "frames")
