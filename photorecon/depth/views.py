@@ -31,7 +31,7 @@ class ViewChoice:
 
     chosen: list[str]
     total: int
-    reason: str  # "all requested", "no sparse points", "coverage"
+    reason: str  # "all requested", "no sparse points", "no point seen well by two views", "coverage"
     uncovered_points: int = 0  # points seen well by fewer chosen views than needed (0 when the cover is complete)
 
     def to_dict(self) -> dict:
@@ -116,6 +116,8 @@ def choose_depth_views(model, cfg) -> ViewChoice:
         n_counted[p] += 1
         taken[best] = True
         chosen.append(best)
+    if taken.sum() < 2:  # no point that two views see well: nothing to cover, the depth stage judges every view
+        return ViewChoice(names, n_views, "no point seen well by two views")
     # views that observe no sparse point are not the cover's to drop (the depth stage skips them, saying why)
     keep = taken | ~observed
     uncovered = int(np.count_nonzero(n_counted < need))
