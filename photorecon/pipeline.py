@@ -148,13 +148,14 @@ def check_enough_depth(mean: float, per_view: dict, n_views: int, run: Reconstru
 
 
 def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, formats: tuple[str, ...], work_dir,
-                 executor=None, refine_cfg: RefineConfig | None = None):
-    """``reconstruct``'s fusion stage: the dataset's depth maps -> fused, cleaned mesh -> ``layout.mesh(fmt)``;
-    with ``refine_cfg.refine`` the cleaned mesh refined against the photos (``mesh.refine``) replaces those files.
-    Returns the mesh and its facts (``fusion.fuse_to_files``; ``refine``: what the refinement did)."""
-    from .fusion import fuse_to_files, load_frames
+                 executor=None, refine_cfg: RefineConfig | None = None, views=None):
+    """``reconstruct``'s fusion stage: the dataset's depth maps (of ``views``, default all) -> fused, cleaned
+    mesh -> ``layout.mesh(fmt)``; with ``refine_cfg.refine`` the cleaned mesh refined against the photos
+    (``mesh.refine``) replaces those files. Returns the mesh and its facts (``fusion.fuse_to_files``;
+    ``refine``: what the refinement did)."""
+    from .fusion import frames_hold_bytes, fuse_to_files, load_frames
 
-    frames = load_frames(ds, fusion_cfg)
+    frames = load_frames(ds, fusion_cfg, views, frames_hold_bytes(fusion_cfg))
     mesh, info = fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor,
                                ds, work_dir)
     if refine_cfg is not None and refine_cfg.refine:
@@ -298,11 +299,13 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                                     "less complete and accurate than --mvs patchmatch's; --quality preview is the "
                                     "quick look that keeps PatchMatch")
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
+                    n_depth = rep["depth_views"]["chosen"]  # the views that were to get a depth map (--depth-views)
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
+                            "depth_views": rep["depth_views"],
                             "seconds_per_view": rep["seconds_per_view"],
                             "triangulation_seconds": rep["triangulation_seconds"],
-                            "confirmed_fraction": confirmed_fraction(rep["per_view"], len(ds.views))}
-                    check_enough_depth(info["confirmed_fraction"], rep["per_view"], len(ds.views), run, cfgs.mvs)
+                            "confirmed_fraction": confirmed_fraction(rep["per_view"], n_depth)}
+                    check_enough_depth(info["confirmed_fraction"], rep["per_view"], n_depth, run, cfgs.mvs)
                     written = sorted(rep["per_view"])
                 else:
                     # depth maps in the given cameras' units scale with them (--marker-size, GPS)
@@ -325,8 +328,10 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         fused = {}
 
         def fusion() -> dict:
+            # MVS writes depth maps for the views it chose (--depth-views) and could match: those are fused
+            views = [v for v in ds.views if ds.has_depth(v)] if source == "mvs" else None
             fused["mesh"], info = fusion_stage(ds, cfgs.fusion, cfgs.clean, layout, formats, work / "fusion",
-                                               executor(), cfgs.refine)
+                                               executor(), cfgs.refine, views)
             return info
 
         def preview() -> None:

@@ -705,3 +705,65 @@ def test_surface_report_counts_edges_and_samples_the_area():
     assert np.allclose(np.max(np.abs(pts) / [0.5, 1.0, 2.0], axis=1), 1.0)  # on the box's faces
     # the two faces |x| = 0.5 hold 2 x 8 of the 28 units of area
     assert abs(np.mean(np.isclose(np.abs(pts[:, 0]), 0.5)) - 16 / 28) < 0.01
+
+
+def test_streamed_frames_fuse_to_the_same_mesh_holding_one_frame(blob_fusion):
+    """Frames beyond the budget's share are read one at a time (``FrameStore``): the same mesh, and the
+    fusion's traced allocations no longer hold every frame at once."""
+    import tracemalloc
+
+    from photorecon.fusion import FrameStore
+
+    ds = Dataset.open(blob_fusion)
+    cfg = FusionConfig()
+
+    def run(hold):
+        tracemalloc.start()
+        try:
+            fr = load_frames(ds, cfg, hold_bytes=hold)
+            mesh = fuse(fr, cfg, ds.model.points)
+            return fr, mesh, tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    held, one, peak_held = run(None)
+    store, streamed, peak_store = run(1)
+    assert isinstance(store, FrameStore) and isinstance(held, list) and len(store) == len(held) == 24
+    _, vid = np.unique(np.concatenate([one.vertices, streamed.vertices]).round(6), axis=0, return_inverse=True)
+    vid = vid.ravel()
+    tris_one = np.unique(np.sort(vid[one.faces], axis=1), axis=0)
+    tris_streamed = np.unique(np.sort(vid[len(one.vertices) + streamed.faces], axis=1), axis=0)
+    assert len(tris_streamed) == len(tris_one) == len(one.faces) and (tris_streamed == tris_one).all()
+    frame_bytes = sum(a.nbytes for f in held for a in (f.depth, f.color, f.confidence, f.normal) if a is not None)
+    assert peak_store < peak_held - 0.6 * frame_bytes, (peak_store, peak_held, frame_bytes)
+
+
+def test_fusion_memory_budget_coarsens_the_voxel_and_keeps_the_surface(frames, gt, blob_fusion, caplog):
+    """A budget too small for the mesh at the footprint's voxel: the voxel is coarsened with a warning so that
+    the estimated mesh fits its share, the face count follows, and the surface stays within tolerance."""
+    import logging
+    import tracemalloc
+
+    from photorecon.fusion import budget_share, estimate_faces
+    from photorecon.fusion.tsdf import MESH_BYTES_PER_FACE
+
+    pts = Dataset.open(blob_fusion).model.points
+    full = fuse(frames, FusionConfig(), pts)
+    tiny = FusionConfig(memory_gb=0.04)
+    share = budget_share(tiny, "mesh")
+    assert estimate_faces(frames, full.metadata["voxel_size"]) * MESH_BYTES_PER_FACE > 2 * share
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        tracemalloc.start()
+        try:
+            small = clean(fuse(frames, tiny, pts))
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert any("--fusion-memory" in r.getMessage() for r in caplog.records)
+    voxel = small.metadata["voxel_size"]
+    assert voxel > 1.3 * full.metadata["voxel_size"]
+    assert estimate_faces(frames, voxel) * MESH_BYTES_PER_FACE <= share
+    assert len(small.faces) * MESH_BYTES_PER_FACE <= 1.5 * share, len(small.faces)
+    assert peak <= tiny.memory_gb * 2**30, peak
+    m = mesh_metrics(small, gt, n_samples=30_000)
+    assert m.chamfer <= 0.002 * m.diagonal and m.fscore >= 0.98, m

@@ -1,16 +1,18 @@
 #!/usr/bin/env python
 """Fusion memory as the photo count grows: the fusion and preview stages of ``reconstruct`` (``load_frames`` ->
-TSDF -> cleaning -> export -> preview) on one facade's depth maps, with its views repeated to N = 10, 20, 40
-frames (a repeated view is a new frame with the same camera and depth map: the surface stays, the input grows).
+TSDF -> cleaning -> export -> preview) on one facade's depth maps, with its views repeated to N = 10, 20, 40, 80
+frames (a repeated view is a new frame with the same camera and depth map: the surface stays, the input grows),
+against the fusion's memory budget (``--fusion-memory``, FusionConfig.memory_gb: ``--set memory_gb=1.0``).
 
 Each N runs in a fresh process: peak resident memory of the fusion stage and of the preview stage
 (``resources.measure``, as report.json has them), wall seconds and CPU seconds (user + system, all threads),
 the mesh's faces, area (scene units squared: m2 on the facades), faces per m2 and per input megapixel (N x the
-depth maps' megapixels), and a linear projection of the fusion peak to 50 frames. ``--profile`` adds the
+depth maps' megapixels), the budget, whether the frames were read one at a time (``streamed``), and a linear
+projection of the fusion peak to 50 frames. ``--profile`` adds the
 resident memory sampled every 20 ms, the largest value per step (frames, grid, integration, extraction,
 cleaning, export, surface report, preview).
 
-    python tools/bench_fusion_memory.py bench_real/herz --dataset ../shared/data/herz-jesu-p8 [--counts 10,20,40]
+    python tools/bench_fusion_memory.py bench_real/herz --dataset ../shared/data/herz-jesu-p8 [--counts 10,20,40,80]
         [--json out.json] [--profile] [--keep-mesh DIR] [--set NAME=VALUE ...]
 
 RESULT is a folder with depth/ (``tools/bench_real.py --out DIR`` writes DIR/herz/depth) or a ``reconstruct``
@@ -169,7 +171,8 @@ def child(args) -> dict:
                "preview_cpu_s": round(r2.ru_utime + r2.ru_stime - r1.ru_utime - r1.ru_stime, 1),
                "faces": len(mesh.faces), "area_m2": round(area, 2), "faces_per_m2": round(len(mesh.faces) / area),
                "faces_per_input_mp": round(len(mesh.faces) / mp), "voxel": mesh.metadata.get("voxel_size"),
-               "chunks": mesh.metadata.get("chunks")}
+               "chunks": mesh.metadata.get("chunks"), "budget_mb": round(getattr(fus, "memory_gb", 0) * 1024),
+               "streamed": info.get("streamed")}
     if sampler:
         row["profile_mb"] = sampler.stop()
     return row
@@ -179,7 +182,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("result", help="folder with depth/ (bench_real --out DIR: DIR/NAME) or a reconstruct output")
     ap.add_argument("--dataset", help="photos and cameras (default: RESULT itself)")
-    ap.add_argument("--counts", default="10,20,40", help="frame counts, comma-separated (default: 10,20,40)")
+    ap.add_argument("--counts", default="10,20,40,80", help="frame counts, comma-separated (default: 10,20,40,80)")
     ap.add_argument("--json", help="write the rows here")
     ap.add_argument("--profile", action="store_true", help="resident memory per step (sampled every 20 ms)")
     ap.add_argument("--keep-mesh", metavar="DIR", help="copy each count's mesh.ply to DIR/mesh_N.ply")
@@ -207,8 +210,8 @@ def main() -> int:
 
         slope, icpt = np.polyfit([r["frames"] for r in rows], [r["fusion_peak_mb"] for r in rows], 1)
         proj = {"fusion_peak_mb_at_50": round(slope * 50 + icpt), "mb_per_frame": round(slope, 1)}
-    cols = ["frames", "fusion_peak_mb", "fusion_s", "fusion_cpu_s", "preview_peak_mb", "preview_cpu_s", "faces",
-            "area_m2", "faces_per_m2", "faces_per_input_mp"]
+    cols = ["frames", "fusion_peak_mb", "budget_mb", "streamed", "fusion_cpu_s", "preview_peak_mb", "preview_cpu_s",
+            "faces", "area_m2", "faces_per_m2", "faces_per_input_mp", "voxel"]
     print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:
         print("| " + " | ".join(str(r.get(c, "")) for c in cols) + " |")

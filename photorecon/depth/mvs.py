@@ -51,6 +51,7 @@ from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_c
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
 from .sweep import plane_sweep
 from ..fields import check_config, expect_config
+from .views import choose_depth_views
 
 log = logging.getLogger("photorecon")
 
@@ -99,6 +100,8 @@ class MVSConfig:
     n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)", "range": (2, 16384)})
     window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)", "range": (1, 63), "odd": True})
     best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel", "range": (1, 256)})
+    depth_views: Literal["auto", "all"] = field(default="auto", metadata={"help": "views that get a depth map: auto = enough views to see every sparse point well from --depth-view-coverage directions (a redundant capture computes fewer depth maps; a small one keeps all); all = every view"})
+    depth_view_coverage: int = field(default=3, metadata={"help": "--depth-views auto: chosen views that must see each sparse point (at a good angle and resolution)", "range": (1, 64)})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
@@ -151,6 +154,16 @@ def _working_view(view: View, max_size: int) -> View:
         return view
     intr = view.intrinsics.scaled(int(round(W * s)), int(round(H * s)))
     return dataclasses.replace(view, intrinsics=intr, extra=dict(view.extra))
+
+
+def _restricted(model, names: list[str]):
+    """``model`` with only the views ``names`` (their observations with them; the points unchanged): the views
+    that get depth maps, which match one another."""
+    if len(names) == len(model.views):
+        return model
+    keep = set(names)
+    return dataclasses.replace(model, views=[v for v in model.views if v.name in keep],
+                               observations={k: o for k, o in model.observations.items() if k in keep})
 
 
 def _triangulated(dataset):
@@ -434,6 +447,7 @@ class MVSResult(Result):
     per_view: dict  # view name -> valid_fraction, sources, size
     reused_tasks: int  # tasks whose output an interrupted run had left
     task_seconds: dict  # task key -> seconds
+    depth_views: dict  # chosen, of, reason, uncovered_points (--depth-views)
 
 
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
@@ -466,6 +480,11 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
     plan: list[tuple[View, list[View], tuple[float, float]]] = []
+    choice = choose_depth_views(model, cfg)
+    if len(choice.chosen) < len(model.views):
+        log.info("mvs: depth maps for %d of %d views (--depth-views auto: each sparse point seen well by %d of "
+                 "them)", len(choice.chosen), len(model.views), cfg.depth_view_coverage)
+    model = _restricted(model, choice.chosen)
     near, far = DEPTH_RANGE_FACTORS[cfg.method]
     near = near if cfg.depth_near is None else cfg.depth_near
     far = far if cfg.depth_far is None else cfg.depth_far
@@ -535,6 +554,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
                        sparse_points=int(len(model.points)), triangulated=triangulated, triangulation_seconds=t_tri,
                        consistency=consistency, seconds_per_view=task_seconds / max(len(views), 1), per_view=stats,
                        reused_tasks=sum(1 for r in results.values() if r.get("reused")),
-                       task_seconds={k: round(r["seconds"], 4) for k, r in results.items()})
+                       task_seconds={k: round(r["seconds"], 4) for k, r in results.items()},
+                       depth_views=choice.to_dict())
     atomic_write_json(out / "mvs_report.json", report.to_dict())
     return report

@@ -19,9 +19,9 @@ from ..fields import expect_config
 from ..resources import release_memory
 from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
                       tsdf_fuse_chunked)
-from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
-from .frames import (_resize_to, _sample_depth_points, depth_view, load_frame, load_frames, pixel_footprint,
-                     prepare_depth, scene_diagonal)
+from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share, frames_hold_bytes
+from .frames import (FrameStore, _resize_to, _sample_depth_points, depth_view, full_frame, load_frame, load_frames,
+                     nonempty, pixel_footprint, prepare_depth, scene_diagonal)
 from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
 from .legacy import legacy_article_fuse
 from .points import _area_samples, _point_cloud, observed_distance, observed_points, oriented_points, surface_report
@@ -29,7 +29,7 @@ from .poisson import (_close, _fair_patch, _largest_component, _orient_patches, 
                       poisson_fuse)
 from .tsdf import (_available_bytes, _band_block_keys, _chunk_size, _depth_max, _extract, _frame_blocks, _grid_bytes,
                    _in_box, _integrate_blocks, _integrate_frame, _integrate_weighted, _new_grid, _normal_band_blocks,
-                   _tsdf_weighted_kernel, estimate_blocks, planar_normals, stitch_pieces, tsdf_fuse, tsdf_voxel_size)
+                   _tsdf_weighted_kernel, estimate_blocks, estimate_faces, planar_normals, stitch_pieces, tsdf_fuse, tsdf_voxel_size)
 
 log = logging.getLogger("photorecon")
 
@@ -67,12 +67,12 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     cfg = expect_config(cfg, FusionConfig, "cfg")
     clean_cfg = expect_config(clean_cfg, CleanConfig, "clean_cfg")
     ds = Dataset.open(root, depth_dir, masks_dir)
-    frames = load_frames(ds, cfg)
+    frames = load_frames(ds, cfg, hold_bytes=frames_hold_bytes(cfg))
     from ..distributed import executor
 
     with output_folder(out, overwrite, inputs=(root, depth_dir, masks_dir), command="fuse", resumable=False) as out:
         layout = Layout(out)
-        cameras = [f.view for f in frames]
+        cameras = list(frames.views) if isinstance(frames, FrameStore) else [f.view for f in frames]
         with executor(cluster) as ex:
             mesh, _ = fuse_to_files(frames, cfg, clean_cfg or CleanConfig(), layout, formats, cameras,
                                     ds.model.points, ex, ds, layout.work)
@@ -112,7 +112,8 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     from ..mesh import clean_open3d, export, to_open3d
 
     fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
-    frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
+    if isinstance(frames, list):
+        frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
     if not len(fused.faces):
         raise EmptyMeshError("the mesh has no triangle")
     fused = canonical_order(fused)  # the same depth maps give the same file, whatever order the threads took
@@ -131,5 +132,8 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
              surface["boundary_edges"], 100 * surface["invented_fraction"])
     support = {k: v for k, v in mesh.metadata.items() if k.startswith("support_")}  # the object's support removed
     scene = {"scene": mesh.metadata["scene"]} if "scene" in mesh.metadata else {}  # what --scene detected and did
+    fusion = {"streamed": isinstance(frames, FrameStore)}  # depth frames read one at a time (--fusion-memory)
+    if metadata.get("voxel_size"):
+        fusion["voxel_size"] = float(metadata["voxel_size"])
     return mesh, {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
-                  "mesher": cfg.mesher, **surface, **support, **scene}
+                  "mesher": cfg.mesher, **fusion, **surface, **support, **scene}

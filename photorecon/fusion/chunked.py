@@ -13,7 +13,7 @@ import trimesh
 from ..cameras import View
 from ..errors import NoDepthError
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
-from .frames import load_frame
+from .frames import load_frame, nonempty
 from .tsdf import (_band_block_keys, _depth_max, _extract, _integrate_frame, _new_grid, chunk_core, stitch_pieces,
                    tsdf_voxel_size)
 
@@ -139,8 +139,8 @@ def tsdf_fuse_chunked(dataset, frames: list[DepthFrame], cfg: FusionConfig, spar
     from ..tasks import IN_PROCESS, Task
 
     ex = executor or IN_PROCESS
-    frames = [f for f in frames if np.count_nonzero(f.depth)]
-    if not frames:
+    frames = nonempty(frames)
+    if not len(frames):
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
     voxel, _ = tsdf_voxel_size(frames, replace(cfg, memory_limit_gb=cfg.memory_limit_gb or 1e6), sparse_points)
     trunc = cfg.trunc_voxels * voxel

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -99,8 +100,9 @@ def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = F
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
 
 
-def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
-    """One view's depth frame (see ``load_frames``); None when no pixel is left valid."""
+def load_frame(dataset, v: View, cfg: FusionConfig, full: bool = True) -> DepthFrame | None:
+    """One view's depth frame (see ``load_frames``); None when no pixel is left valid. ``full=False``: the
+    filtered depth map alone (no colour, confidence or normals)."""
     raw = dataset.depth(v)
     dv = depth_view(v, raw.shape)
     conf = dataset.confidence(v)
@@ -110,6 +112,8 @@ def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
     depth = prepare_depth(dv, raw, cfg, _resize_to(dataset.mask(v), raw.shape), conf)
     if not np.count_nonzero(depth):
         return None
+    if not full:
+        return DepthFrame(dv, depth)
     try:
         color = _resize_to(dataset.image(v), raw.shape)
     except InputDataError:  # colour is optional for fusion
@@ -123,13 +127,55 @@ def load_frame(dataset, v: View, cfg: FusionConfig) -> DepthFrame | None:
     return DepthFrame(dv, depth, color, conf, normal)
 
 
-def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> list[DepthFrame]:
+class FrameStore(Sequence):
+    """Depth frames read from the dataset when they are used, one at a time: memory for one frame whatever the
+    view count. Indexing or iterating gives the depth map alone (``load_frame(full=False)``: what the scene's
+    scale, the depth limit, the block estimate and the surface report read); ``full(i)`` gives frame ``i``
+    with its colour, confidence and normals (what integration reads). Holds only views with a valid pixel."""
+
+    def __init__(self, dataset, cfg: FusionConfig, views: list[View], bytes_per_frame: list[int]):
+        self.dataset, self.cfg, self.views, self.bytes_per_frame = dataset, cfg, views, bytes_per_frame
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        return load_frame(self.dataset, self.views[i], self.cfg, full=False)
+
+    def full(self, i: int) -> DepthFrame:
+        return load_frame(self.dataset, self.views[i], self.cfg)
+
+
+def full_frame(frames, i: int) -> DepthFrame:
+    """Frame ``i`` with everything it carries (a ``FrameStore`` reads it now)."""
+    return frames.full(i) if isinstance(frames, FrameStore) else frames[i]
+
+
+def nonempty(frames):
+    """The frames with a valid pixel (a ``FrameStore`` holds only those)."""
+    return frames if isinstance(frames, FrameStore) else [f for f in frames if np.count_nonzero(f.depth)]
+
+
+def frame_bytes(f: DepthFrame) -> int:
+    """Bytes a frame holds (its maps)."""
+    return sum(a.nbytes for a in (f.depth, f.color, f.confidence, f.normal) if a is not None)
+
+
+def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None,
+                hold_bytes: float | None = None) -> list[DepthFrame] | FrameStore:
     """Depth frames of a ``Dataset`` (views without a depth map are skipped with a warning).
 
     A depth map may come at a working resolution other than its camera's (same aspect ratio, e.g. MVS at
     1600 px for 3072 px photos): its frame then gets the camera's intrinsics scaled to the depth map
-    (``Intrinsics.scaled``), and the image and mask are resized to it."""
-    frames, missing = [], []
+    (``Intrinsics.scaled``), and the image and mask are resized to it.
+
+    ``hold_bytes``: when the frames together would hold more than this, a ``FrameStore`` is returned instead
+    of a list: the frames are read again from the dataset, one at a time, when used (TSDF fusion streams
+    them), so the memory they take does not grow with the view count."""
+    frames, missing, store = [], [], None
+    held, originals = 0, []  # the dataset's views of ``frames`` (a frame's view is scaled to its depth map)
     for v in views or dataset.views:
         if not dataset.has_depth(v):
             missing.append(v.name)
@@ -138,10 +184,23 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None) -> 
         if f is None:
             log.warning("view %s: depth map has no valid pixel; skipped", v.name)
             continue
+        held += frame_bytes(f)
+        if store is None and hold_bytes is not None and held > hold_bytes:
+            store = FrameStore(dataset, cfg, originals, [frame_bytes(g) for g in frames])
+            frames = []
+        if store is not None:
+            store.views.append(v)
+            store.bytes_per_frame.append(frame_bytes(f))
+            continue
         frames.append(f)
+        originals.append(v)
     if missing:
         log.warning("%d view(s) without a depth map in %s skipped: %s", len(missing), dataset.depth_dir,
                     ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
+    if store is not None:
+        log.info("fusion: %d depth frames (%.1f GB with their images) are read one at a time", len(store),
+                 held / 2**30)
+        return store
     if not frames:
         raise NoDepthError(f"no usable depth map in {dataset.depth_dir}: nothing to fuse")
     return frames

@@ -10,7 +10,7 @@ from ..cameras import backproject_depth, camera_center
 from ..errors import NoDepthError
 from ..progress import bar
 from .config import DepthFrame
-from .frames import pixel_footprint
+from .frames import nonempty, pixel_footprint
 from .grid import _cell_keys
 
 
@@ -141,7 +141,7 @@ def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: i
     cells of the mesher (Poisson octree cell, TSDF voxel), at least three pixel footprints."""
     from ..mesh import edge_use_counts
 
-    frames = [f for f in frames if np.count_nonzero(f.depth)]
+    frames = nonempty(frames)
     footprint = pixel_footprint(frames)
     cell = float(mesh.metadata.get("poisson_cell") or mesh.metadata.get("voxel_size") or 0.0)
     tau = max(2 * cell, 3 * footprint)

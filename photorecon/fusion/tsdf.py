@@ -26,8 +26,8 @@ from ..cameras import backproject_depth, camera_center
 from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
 from ..progress import bar
 from ..resources import available_bytes, release_memory
-from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
-from .frames import _sample_depth_points, pixel_footprint, scene_diagonal
+from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share
+from .frames import _sample_depth_points, full_frame, nonempty, pixel_footprint, scene_diagonal
 from .grid import _cell_keys
 
 log = logging.getLogger("photorecon")
@@ -39,17 +39,32 @@ def _available_bytes() -> int:
 
 def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
     """Unique ``_cell_keys`` of the voxel blocks that the frames' sampled surface points, moved by -trunc, 0 and
-    +trunc along their rays (the truncation band), fall in."""
+    +trunc along their rays (the truncation band), fall in (with ``trunc`` = 0: the surface's blocks)."""
     block = voxel * _BLOCK_RES
-    keys = []
+    keys = np.zeros(0, np.int64)
     for f in frames:
         pts = _sample_depth_points(f, 20000)
         if not len(pts):
             continue
         ray = pts - camera_center(f.view.cam_from_world)
         ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-        keys.append(np.unique(_cell_keys(np.concatenate([pts + s * ray for s in (-trunc, 0.0, trunc)]), block)))
-    return np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+        shifts = (-trunc, 0.0, trunc) if trunc > 0 else (0.0,)
+        keys = np.union1d(keys, _cell_keys(np.concatenate([pts + s * ray for s in shifts]), block))
+    return keys
+
+
+# Marching cubes' faces per voxel block that the surface crosses (a block of 16^3 voxels; measured: 300 on the
+# synthetic blob at two voxel sizes), and the fusion's peak bytes per face of the mesh: extraction, stitching,
+# the Open3D copy and its cleaning (measured: 200 on Herz-Jesu-P8).
+FACES_PER_SURFACE_BLOCK = 540
+MESH_BYTES_PER_FACE = 200
+
+
+def estimate_faces(frames: list[DepthFrame], voxel: float) -> int:
+    """The fused mesh's face count at ``voxel``, before fusing: the voxel blocks the depth maps' sampled surface
+    points fall in (each view's surface: a block two views see counts once) x ``FACES_PER_SURFACE_BLOCK``. It
+    follows the surface's area over the voxel's square, not the number of views."""
+    return int(len(_band_block_keys(frames, voxel, 0.0)) * FACES_PER_SURFACE_BLOCK)
 
 
 def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:
@@ -109,7 +124,24 @@ def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
         log.warning("tsdf: a %.4g voxel would need more than the %.1f GB allowed; coarsened to voxel %.4g "
                     "(%d blocks, about %.1f GB; --voxel-size or --memory-limit-gb to choose)", first,
                     limit / 2**30, voxel, n_blocks, need / 2**30)
+    mesh_budget = budget_share(cfg, "mesh")
+    if mesh_budget:
+        first = voxel
+        faces = estimate_faces(frames, voxel)
+        for _ in range(30):
+            if faces * MESH_BYTES_PER_FACE <= mesh_budget:
+                break
+            # faces follow the surface's area over the voxel's square
+            voxel *= max(1.05, 1.02 * np.sqrt(faces * MESH_BYTES_PER_FACE / mesh_budget))
+            faces = estimate_faces(frames, voxel)
+        if voxel != first:
+            n_blocks, _ = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+            log.warning("tsdf: a %.4g voxel would make a mesh of about %.1f M faces, more than --fusion-memory "
+                        "%.3g GB holds; coarsened to voxel %.4g (about %.1f M faces; a larger --fusion-memory "
+                        "keeps the finer voxel)", first, estimate_faces(frames, first) / 1e6, cfg.memory_gb, voxel,
+                        faces / 1e6)
     return voxel, n_blocks
+
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -423,10 +455,10 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     lies in its core: the same voxels, values and triangles as one grid (``tsdf_fuse_chunked`` does the same
     from disk, one task per chunk). Memory: the frames, one chunk's grid and the mesh, whatever the scene's
     extent."""
-    frames = [f for f in frames if np.count_nonzero(f.depth)]
-    if not frames:
+    frames = nonempty(frames)
+    if not len(frames):
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to fuse")
-    budget = cfg.grid_budget_gb * (1 << 30) if cfg.grid_budget_gb else 0
+    budget = budget_share(cfg, "grid")
     # chunks bound the grid, so an automatic voxel (bounded by the depth maps' pixel footprint) is not
     # coarsened for the whole grid's size; a given --voxel-size is still refused when the whole grid would not fit
     auto = budget and cfg.voxel_size is None
@@ -436,7 +468,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     depth_max = _depth_max(frames, trunc)
     probe = _new_grid(voxel, 64)
     plans = []  # per frame: (coords, planar-normal mask or None, weighted)
-    for f in bar(frames, desc="tsdf blocks"):
+    for i in bar(range(len(frames)), desc="tsdf blocks"):
+        f = full_frame(frames, i)
         g, coords, weighted = _frame_blocks(probe, f, cfg, voxel, depth_max)
         keep = None
         if g.normal is not None and g.normal is not f.normal:
@@ -460,11 +493,13 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         if count is None:
             count = int(_in_box(allb, lo - 1, hi + 1).sum())
         vbg = _new_grid(voxel, int(count * 1.05) + 64)
-        for f, (coords, keep, weighted) in zip(bar(frames, desc="tsdf fusion") if not chunk else frames, plans):
+        for i in bar(range(len(frames)), desc="tsdf fusion") if not chunk else range(len(frames)):
+            coords, keep, weighted = plans[i]
             if lo is not None:
                 coords = coords[_in_box(coords, lo - 1, hi + 1)]
                 if not len(coords):
                     continue
+            f = full_frame(frames, i)
             if keep is not None:
                 mask = np.unpackbits(keep, count=f.depth.size).reshape(f.depth.shape).astype(bool)
                 f = replace(f, normal=np.where(mask[..., None], np.asarray(f.normal, np.float32), np.float32(0)))

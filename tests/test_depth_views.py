@@ -1,0 +1,114 @@
+"""Which views get depth maps (``--depth-views``): coverage of the sparse points kept, redundant views dropped.
+Synthetic cameras and surface points (visibility by ray casting); no image is rendered."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from photorecon.cameras import View
+from photorecon.depth.mvs import MVSConfig
+from photorecon.depth.views import choose_depth_views
+from photorecon.render import Renderer
+from photorecon.synthetic import SynthConfig, make_scene, make_views, normalize_mesh, sparse_model_from_surface
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    return Renderer(normalize_mesh(make_scene("blob"))[0])
+
+
+def _model(renderer, views: int, rig: str = "sphere", points: int = 2000):
+    return sparse_model_from_surface(renderer, make_views(SynthConfig(views=views, rig=rig, width=320, height=240)),
+                                     points)
+
+
+def _chosen_viewers(model, chosen) -> tuple[np.ndarray, np.ndarray]:
+    """Per sparse point: how many views observe it, and how many of the chosen ones."""
+    index = model.point_index()
+    all_, sel = np.zeros(len(model.points), int), np.zeros(len(model.points), int)
+    for name, (_, ids) in model.observations.items():
+        rows = [index[int(i)] for i in ids]
+        all_[rows] += 1
+        if name in chosen:
+            sel[rows] += 1
+    return all_, sel
+
+
+def test_redundant_capture_keeps_coverage_with_fewer_views(renderer):
+    """120 views around one object: about a third get depth maps, and every sparse point seen by at least three
+    views is still seen by at least three chosen ones (all of them by at least two)."""
+    model = _model(renderer, 120)
+    choice = choose_depth_views(model, MVSConfig())
+    assert choice.reason == "coverage" and choice.total == 120 and choice.uncovered_points == 0
+    assert 20 <= len(choice.chosen) <= 60, len(choice.chosen)
+    seen, chosen = _chosen_viewers(model, set(choice.chosen))
+    assert (chosen[seen >= 3] >= 3).mean() >= 0.99
+    assert (chosen[seen >= 2] >= 2).all()
+    # a higher coverage asks for more views
+    assert len(choose_depth_views(model, MVSConfig(depth_view_coverage=5)).chosen) > len(choice.chosen)
+
+
+def test_small_capture_keeps_every_view(renderer):
+    for n in (8, 12, 30):
+        model = _model(renderer, n)
+        assert len(choose_depth_views(model, MVSConfig()).chosen) == n
+    model = _model(renderer, 120)
+    assert len(choose_depth_views(model, MVSConfig(depth_views="all")).chosen) == 120
+
+
+def test_duplicated_views_are_dropped(renderer):
+    """Each of 30 views taken twice from nearly the same pose (1 mm, 0.1 degree apart): about half dropped, and
+    never both of a pair when the single set needs only one of them."""
+    base = make_views(SynthConfig(views=30, width=320, height=240))
+    rng = np.random.default_rng(0)
+    twins = []
+    for v in base:
+        T = v.cam_from_world.copy()
+        a = np.radians(0.1)
+        R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        T[:3, :3] = R @ T[:3, :3]
+        T[:3, 3] += rng.normal(size=3) * 1e-3
+        twins += [v, replace(v, name=v.name + "_b", cam_from_world=T, image_file=None)]
+    model = sparse_model_from_surface(renderer, twins, 2000)
+    choice = choose_depth_views(model, MVSConfig())
+    assert 0.4 * 60 <= 60 - len(choice.chosen) <= 0.6 * 60, len(choice.chosen)
+    pairs = {v.name for v in base}
+    both = [n for n in pairs if n in choice.chosen and n + "_b" in choice.chosen]
+    assert len(both) <= 2, both
+    seen, chosen = _chosen_viewers(model, set(choice.chosen))
+    assert (chosen[seen >= 6] >= 3).mean() >= 0.99  # seen from three distinct poses: still three chosen
+
+
+def test_views_without_points_are_kept(renderer):
+    model = _model(renderer, 60)
+    lonely = View("lonely", model.views[0].intrinsics, model.views[0].cam_from_world)
+    model = replace(model, views=model.views + [lonely])
+    choice = choose_depth_views(model, MVSConfig())
+    assert "lonely" in choice.chosen and len(choice.chosen) < 61
+    no_points = replace(model, points=np.zeros((0, 3)), observations={})
+    assert choose_depth_views(no_points, MVSConfig()).reason == "no sparse points"
+
+
+def test_depth_stage_and_fusion_use_only_the_chosen_views(tmp_path):
+    """48 views of one object: the depth stage writes depth maps for the chosen views only (the report says how
+    many of how many), and fusing those gives the object's surface."""
+    from photorecon.depth.mvs import run_mvs
+    from photorecon.fusion import FusionConfig, fuse, load_frames
+    from photorecon.io.dataset import Dataset
+    from photorecon.metrics import mesh_metrics
+    from photorecon.synthetic import synthesize
+
+    data = tmp_path / "data"
+    synthesize(SynthConfig(scene="blob", views=48, width=80, height=60, points=1500, seed=2), data)
+    ds = Dataset.open(data)
+    cfg = MVSConfig(method="sweep", n_sources=4, n_depths=48, min_consistent=1, min_confidence=0.5)
+    chosen = set(choose_depth_views(ds.model, cfg).chosen)
+    rep = run_mvs(ds, tmp_path / "depth", cfg)
+    assert rep.depth_views["of"] == 48 and rep.depth_views["chosen"] == len(chosen) <= 36
+    written = {p.name[:-4] for p in (tmp_path / "depth").glob("*.npy") if p.name.count(".") == 1}
+    assert written <= chosen and len(written) >= 0.9 * len(chosen) and rep.views == len(written)
+    dsd = Dataset.open(data, depth_dir=tmp_path / "depth")
+    frames = load_frames(dsd, FusionConfig(), [v for v in dsd.views if dsd.has_depth(v)])
+    m = mesh_metrics(fuse(frames, FusionConfig(trunc_voxels=3.0), dsd.model.points),
+                     __import__("trimesh").load(data / "gt_mesh.ply", process=False), n_samples=20_000)
+    assert m.fscore >= 0.9, m
