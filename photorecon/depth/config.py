@@ -44,6 +44,7 @@ class MVSConfig:
     pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: grey-level sigma of the bilateral NCC weight (grey 0..1)", "range": (0.0, 10.0), "exclusive_min": True})
     pm_fine_sources: int = field(default=0, metadata={"help": "patchmatch: after the coarsest level, match only the best this many source views (0 = all)", "range": (0, 256)})
     pm_fine_refine: int = field(default=2, metadata={"help": "patchmatch: refinement hypotheses per pixel after the coarsest level (2, 3 or 6: also random ones)", "range": (0, 6)})
+    pm_fine_views: Literal["joint", "current"] = field(default="joint", metadata={"help": "patchmatch: view weights after the coarsest level: joint (ACMH: every candidate in every source) or current (from each pixel's own hypothesis; the other candidates evaluated in the weighted sources only, until they cannot win: fewer evaluations)"})
     pm_reuse_cost: bool = field(default=True, metadata={"help": "patchmatch: finer levels start from the coarser level's costs (upsampled) instead of recomputing them"})
     pm_same_depth: float = field(default=1e-3, metadata={"help": "patchmatch: candidates this close in relative depth (and --pm-same-normal-deg in normal) share one cost evaluation", "range": (0.0, 1.0)})
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees", "range": (0.0, 90.0)})
