@@ -302,6 +302,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "seconds_per_view": rep["seconds_per_view"],
+                            "cpu_seconds_per_view": round(rep["cpu_seconds_per_view"], 2),
+                            "cpu_seconds_per_mp_source": round(rep["cpu_seconds_per_mp_source"], 3),
                             "triangulation_seconds": rep["triangulation_seconds"]}
                     written = sorted(rep["per_view"])
                 else:

@@ -219,6 +219,10 @@ def test_given_cameras_without_points_get_triangulated(ring16, tmp_path):
     rep = run_mvs(bare, tmp_path / "d", MVSConfig(n_sources=3, pm_levels=1, pm_iterations=3, min_consistent=1))
     assert rep["triangulated"] and rep["sparse_points"] > 200
     assert rep["views"] >= len(ds.views) - 1
+    # the depth tasks' CPU seconds per view and per megapixel-source (views x 3 sources x working megapixels)
+    w, h = rep["per_view"][next(iter(rep["per_view"]))]["size"]
+    assert rep["cpu_seconds_per_view"] > 0
+    assert rep["cpu_seconds_per_mp_source"] == pytest.approx(rep["cpu_seconds_per_view"] / (3 * w * h / 1e6), rel=1e-6)
     within, cover, _ = depth_scores(ds, tmp_path / "d", ring16)
     assert within > 0.9 and cover > 0.4, (within, cover)
 

@@ -250,7 +250,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
     ``"filter"`` (a view's geometric consistency against its sources, then its files in ``out``). A task whose
     output is already in ``work`` (a retry, a resumed run) returns at once."""
     cfg = ctx.cfg
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()  # CPU: all threads of this process (the kernels' too)
     if kind == "sweep":
         if _raw_path(ctx, name, "depth").is_file():
             return {"seconds": 0.0, "reused": True}
@@ -258,7 +258,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         src = [(_working_grey(ctx, s), ctx.plan[s][0]) for s in srcs]
         depth, conf = plane_sweep(_working_grey(ctx, name), ref_w, src, rng[0], rng[1], cfg)
         _finish_depth(ctx, name, depth, conf, None)
-        return {"seconds": time.perf_counter() - t0}
+        return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0}
     if kind == "pm":
         from .patchmatch import PatchMatchParams, pm_rounds, pm_view_round
 
@@ -280,7 +280,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             _save(ctx.work / f"r{r}" / f"{name}.normal.npy", normal)
             _save(ctx.work / f"r{r}" / f"{name}.cost.npy", cost)
             _save(done, depth)
-        return {"seconds": seconds}
+        return {"seconds": seconds, "cpu_seconds": time.process_time() - c0}
     if kind == "filter":
         res = _raw_result(ctx, name, normal=True)
         before = int((res.depth > 0).sum())
@@ -359,6 +359,8 @@ class MVSResult(Result):
     triangulation_seconds: float
     consistency: dict  # the geometric consistency filter's statistics
     seconds_per_view: float
+    cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
+    cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
     per_view: dict  # view name -> valid_fraction, sources, size
     reused_tasks: int  # tasks whose output an interrupted run had left
     task_seconds: dict  # task key -> seconds
@@ -433,6 +435,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     _MASK_CACHE.clear()
     t_all = time.perf_counter() - t0
     task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
+    task_cpu = sum(r.get("cpu_seconds", 0.0) for k, r in results.items() if not k.startswith("filter:"))
+    mp_sources = sum(len(srcs) * wv.intrinsics.width * wv.intrinsics.height / 1e6 for wv, srcs, _, _ in views.values())
     consistency: dict = {}
     filtered = {k.partition(":")[2]: r for k, r in results.items() if k.startswith("filter:")}
     if cfg.min_consistent > 0:
@@ -461,7 +465,9 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     report = MVSResult(views=len(stats), skipped=skipped, method=cfg.method, depth_seconds=task_seconds,
                        wall_seconds=t_all, graph_seconds=t_graph, workers=ex.workers,
                        sparse_points=int(len(model.points)), triangulated=triangulated, triangulation_seconds=t_tri,
-                       consistency=consistency, seconds_per_view=task_seconds / max(len(views), 1), per_view=stats,
+                       consistency=consistency, seconds_per_view=task_seconds / max(len(views), 1),
+                       cpu_seconds_per_view=task_cpu / max(len(views), 1),
+                       cpu_seconds_per_mp_source=task_cpu / mp_sources if mp_sources else 0.0, per_view=stats,
                        reused_tasks=sum(1 for r in results.values() if r.get("reused")),
                        task_seconds={k: round(r["seconds"], 4) for k, r in results.items()})
     atomic_write_json(out / "mvs_report.json", report.to_dict())
