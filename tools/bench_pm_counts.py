@@ -137,7 +137,8 @@ def main() -> int:
         cpu = time.process_time() - c0
         rows, total = table(cfg.n_sources, args.ncc_ns)
         views = row.get("views") or row.get("depth_maps")
-        w, h = (int(s) for s in str(row["size"]).split("x"))
+        size = row["size"]
+        w, h = size if isinstance(size, (list, tuple)) else (int(s) for s in str(size).split("x"))
         mps = views * cfg.n_sources * w * h / 1e6
         res = {"dataset": name, "config": over, "cpu_s": round(cpu, 1),
                "depth_cpu_s": None if depth_cpu is None else round(depth_cpu, 1),
