@@ -303,6 +303,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "depth_views": rep["depth_views"],
                             "seconds_per_view": rep["seconds_per_view"],
+                            "cpu_seconds_per_view": round(rep["cpu_seconds_per_view"], 2),
+                            "cpu_seconds_per_mp_source": round(rep["cpu_seconds_per_mp_source"], 3),
                             "triangulation_seconds": rep["triangulation_seconds"],
                             "confirmed_fraction": confirmed_fraction(rep["per_view"], n_depth)}
                     check_enough_depth(info["confirmed_fraction"], rep["per_view"], n_depth, run, cfgs.mvs)

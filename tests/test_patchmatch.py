@@ -148,6 +148,46 @@ def test_pixels_outside_the_mask_are_not_computed(blob_small):
         assert np.mean(np.abs(d[inner] - gt[inner]) / gt[inner] < 0.01) > 0.8  # measured 0.87 masked, 0.85 not
 
 
+def test_counts_are_the_pixels_and_evaluations_of_each_iteration(blob_small):
+    """``counts`` gets every computed pixel once per iteration (both colours of the checkerboard, none outside
+    the mask) and, for a first iteration from random planes with the joint view selection, at least one NCC
+    evaluation per source for the pixel's own hypothesis."""
+    ds = Dataset.open(blob_small)
+    cfg = MVSConfig(**FAST)
+    v, srcs, lo, hi, params = _single_view(ds, 0, cfg)
+    ref, src = _gray(ds.image(v)), [_gray(ds.image(s)) for s in srcs]
+    active = np.zeros(ref.shape, bool)
+    active[10:-10, 20:-20] = True
+    counts: dict = {}
+    patchmatch_view(ref, v, src, srcs, lo, hi, params, 2, seed=1, active=active, counts=counts)
+    assert counts["initial"] == active.sum() * len(srcs)
+    assert [c["pixels"] for c in counts["iterations"]] == [active.sum()] * 2
+    assert all(c["candidate_evals"] >= c["pixels"] * len(srcs) for c in counts["iterations"])
+    assert all(c["skipped"] == 0 for c in counts["iterations"])
+
+
+def test_current_view_selection_keeps_the_depths_with_fewer_evaluations(blob_small):
+    """From converged planes (a finer level's start), view weights from each pixel's own hypothesis and the other
+    candidates in the weighted sources only, until they cannot win: about the same depths as ACMH's joint view
+    selection, for less than two thirds of its NCC evaluations."""
+    ds = Dataset.open(blob_small)
+    cfg = MVSConfig(**FAST)
+    v, srcs, lo, hi, params = _single_view(ds, 0, cfg)
+    ref, src = _gray(ds.image(v)), [_gray(ds.image(s)) for s in srcs]
+    gt = np.load(blob_small / "depth" / f"{v.name}.npy")
+    start = patchmatch_view(ref, v, src, srcs, lo, hi, params, 4, seed=1, seeds=ds.model.points_seen_by(v.name))
+    within, evals = {}, {}
+    for mode in (False, True):
+        counts: dict = {}
+        d = patchmatch_view(ref, v, src, srcs, lo, hi, params, 1, seed=2, init=(start[0].copy(), start[1].copy()),
+                            init_cost=start[2], n_refine=2, counts=counts, select_current=mode)[0]
+        ok = gt > 0
+        within[mode] = np.mean(np.abs(d[ok] - gt[ok]) / gt[ok] < 0.01)
+        evals[mode] = sum(c["candidate_evals"] + c["refine_evals"] for c in counts["iterations"])
+    assert within[True] > within[False] - 0.01, within
+    assert evals[True] < 0.67 * evals[False], evals
+
+
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
     return synth_scene(tmp_path_factory, "room", scene="room", views=16, width=256, height=192, points=2000, seed=4)
@@ -179,6 +219,10 @@ def test_given_cameras_without_points_get_triangulated(ring16, tmp_path):
     rep = run_mvs(bare, tmp_path / "d", MVSConfig(n_sources=3, pm_levels=1, pm_iterations=3, min_consistent=1))
     assert rep["triangulated"] and rep["sparse_points"] > 200
     assert rep["views"] >= len(ds.views) - 1
+    # the depth tasks' CPU seconds per view and per megapixel-source (views x 3 sources x working megapixels)
+    w, h = rep["per_view"][next(iter(rep["per_view"]))]["size"]
+    assert rep["cpu_seconds_per_view"] > 0
+    assert rep["cpu_seconds_per_mp_source"] == pytest.approx(rep["cpu_seconds_per_view"] / (3 * w * h / 1e6), rel=1e-6)
     within, cover, _ = depth_scores(ds, tmp_path / "d", ring16)
     assert within > 0.9 and cover > 0.4, (within, cover)
 

@@ -28,6 +28,9 @@ from numba import njit, prange  # noqa: E402
 
 N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
 N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)
+# pm_pass's per-row counts: pixels computed, pixels left as converged, NCC evaluations (candidates, refinement)
+COUNT_PIXELS, COUNT_SKIPPED, COUNT_CANDIDATE, COUNT_REFINE = 0, 1, 2, 3
+N_COUNTS = 4
 
 
 def sampling_regions(strip: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -442,11 +445,90 @@ def initial_cost(ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo
             cost[y, x] = acc / k
 
 
+@njit(cache=True, fastmath=True)
+def _current_views(srcs, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, min_var, A, b, Kinv, r0, r1, r2, m, h, cd, cn,
+                   nc, ok, cm, wv, order, use_geo, lam_geo, gq, Ge, GM, Gg, sdepth, delta_geo, tau_good, inv2conf,
+                   same_depth, same_cos, counts, row):
+    """``pm_pass``'s steps 2-4 when the pixel's current hypothesis (candidate 0) is already good (finer levels):
+    the current hypothesis in every source gives the view weights (exp(-c^2 / (2 sigma_conf^2)) where its cost c is
+    below ``tau_good``, else the two sources that match it best), then each other candidate in the weighted sources
+    only, heaviest first, until it cannot win any more. Returns (best candidate, its cost, sum of weights), or
+    (-1, 0, 0) when the current hypothesis is not a valid plane (the caller then builds the full matrix)."""
+    S = srcs.shape[0]
+    d = cd[0]
+    if not (d > 0 and _plane_m(d, cn[0, 0], cn[0, 1], cn[0, 2], r0, r1, r2, Kinv, m)):
+        return -1, 0.0, 0.0
+    ok[0] = True
+    for j in range(S):
+        _homography(A, b, j, m, h)
+        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
+        if use_geo:
+            c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
+        cm[0, j] = c
+    counts[row, COUNT_CANDIDATE] += S
+    wsum = 0.0
+    for j in range(S):
+        c = cm[0, j]
+        wv[j] = math.exp(-c * c * inv2conf) if c < tau_good else 0.0
+        wsum += wv[j]
+    if wsum <= 0.0:
+        for _ in range(min(2, S)):
+            jb = 0
+            mn = 1e30
+            for j in range(S):
+                if wv[j] == 0.0 and cm[0, j] < mn:
+                    mn = cm[0, j]
+                    jb = j
+            wv[jb] = 1.0
+            wsum += 1.0
+    nw = 0  # the weighted sources, heaviest first
+    for j in range(S):
+        if wv[j] > 0:
+            q = nw
+            while q > 0 and wv[order[q - 1]] < wv[j]:
+                order[q] = order[q - 1]
+                q -= 1
+            order[q] = j
+            nw += 1
+    bc = 0.0
+    for q in range(nw):
+        bc += wv[order[q]] * cm[0, order[q]]
+    bi = 0
+    for i in range(1, nc):
+        d = cd[i]
+        ok[i] = d > 0 and _plane_m(d, cn[i, 0], cn[i, 1], cn[i, 2], r0, r1, r2, Kinv, m)
+        if not ok[i]:
+            continue
+        same = False
+        for q in range(i):  # the same plane as an earlier candidate cannot do better
+            if (ok[q] and abs(cd[q] - d) <= same_depth * d and cn[q, 0] * cn[i, 0] + cn[q, 1] * cn[i, 1]
+                    + cn[q, 2] * cn[i, 2] > same_cos):
+                same = True
+                break
+        if same:
+            continue
+        acc = 0.0
+        for q in range(nw):
+            j = order[q]
+            _homography(A, b, j, m, h)
+            c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
+            counts[row, COUNT_CANDIDATE] += 1
+            if use_geo:
+                c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
+            acc += wv[j] * c
+            if acc >= bc:  # cannot win any more
+                break
+        if acc < bc:
+            bc = acc
+            bi = i
+    return bi, bc / wsum, wsum
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
             tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, skip_px, skip_n,
-            depth, normal, cost):
+            select_current, depth, normal, cost, counts):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
 
     1. candidates: the current hypothesis and, from each of the 8 regions around it (other colour), the
@@ -465,6 +547,9 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
     geometric term and ``skip_n`` > 0, a pixel whose hypothesis at least ``skip_n`` sources' depth maps confirm
     (forward-backward reprojection error below ``skip_px``) is left as it is (converged), and so are pixels of
     negative depth (outside the view's mask: never computed, never a candidate).
+
+    ``counts`` (H, N_COUNTS) int64 gets, per row, what the pass did (``COUNT_*``: pixels computed, pixels left as
+    converged, NCC evaluations of the candidates and of the refinement): the work it did, free of the clock.
     """
     H, W = ref.shape
     S = srcs.shape[0]
@@ -488,9 +573,11 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
         wv = np.empty(S, np.float64)
         bestj = np.empty(S, np.float64)
         gq = np.empty((S, 3), np.float64)
+        order = np.empty(S, np.int64)
         for x in range((y + color) % 2, W, 2):
             if depth[y, x] < 0:  # outside the mask
                 continue
+            counts[y, COUNT_PIXELS] += 1
             r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
             r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
             r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
@@ -502,6 +589,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                         if _geo(j, depth[y, x], gq, Ge, GM, Gg, sdepth, x, y, delta_geo) < skip_px:
                             n_ok += 1
                     if n_ok >= skip_n:  # converged: the other views' depth maps confirm it
+                        counts[y, COUNT_SKIPPED] += 1
                         continue
             sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv, wrow)
             # 1. candidates
@@ -537,74 +625,84 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                 cd[nc] = d
                 cn[nc, 0], cn[nc, 1], cn[nc, 2] = n0, n1, n2
                 nc += 1
-            # 2. cost matrix
-            for i in range(nc):
-                d = cd[i]
-                ok[i] = d > 0 and _plane_m(d, cn[i, 0], cn[i, 1], cn[i, 2], r0, r1, r2, Kinv, m)
-                same = -1
-                for q in range(i):  # converged neighbours often propagate the very same plane
-                    if (abs(cd[q] - d) <= same_depth * d and cn[q, 0] * cn[i, 0] + cn[q, 1] * cn[i, 1]
-                            + cn[q, 2] * cn[i, 2] > same_cos):
-                        same = q
-                        break
-                if same >= 0:
-                    for j in range(S):
-                        cm[i, j] = cm[same, j]
-                    continue
-                for j in range(S):
-                    if not ok[i]:
-                        cm[i, j] = 2.0 + lam_geo * delta_geo
-                        continue
-                    _homography(A, b, j, m, h)
-                    c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
-                    if use_geo:
-                        c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
-                    cm[i, j] = c
-            # 3. view weights
-            wsum = 0.0
-            for j in range(S):
-                ng = 0
-                nb = 0
-                acc = 0.0
-                mn = 1e30
-                for i in range(nc):
-                    c = cm[i, j]
-                    if c < mn:
-                        mn = c
-                    if c < tau_good:
-                        ng += 1
-                        acc += math.exp(-c * c * inv2conf)
-                    elif c > tau_bad:
-                        nb += 1
-                bestj[j] = mn
-                if ng > n_good and nb < n_bad:
-                    wv[j] = acc / ng
-                else:
-                    wv[j] = 0.0
-                wsum += wv[j]
-            if wsum <= 0.0:
-                # fall back to the two sources that match some candidate best
-                for _ in range(min(2, S)):
-                    jb = 0
-                    mn = 1e30
-                    for j in range(S):
-                        if wv[j] == 0.0 and bestj[j] < mn:
-                            mn = bestj[j]
-                            jb = j
-                    wv[jb] = 1.0
-                    wsum += 1.0
-            # 4. best candidate by weighted cost
-            bi = 0
+            bi = -1
             bc = 1e30
-            for i in range(nc):
-                acc = 0.0
+            wsum = 0.0
+            if select_current:  # view weights from the current hypothesis, candidates with early termination
+                bi, bc, wsum = _current_views(srcs, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, min_var, A, b, Kinv,
+                                              r0, r1, r2, m, h, cd, cn, nc, ok, cm, wv, order, use_geo, lam_geo, gq,
+                                              Ge, GM, Gg, sdepth, delta_geo, tau_good, inv2conf, same_depth, same_cos,
+                                              counts, y)
+            if bi < 0:
+                # 2. cost matrix
+                for i in range(nc):
+                    d = cd[i]
+                    ok[i] = d > 0 and _plane_m(d, cn[i, 0], cn[i, 1], cn[i, 2], r0, r1, r2, Kinv, m)
+                    same = -1
+                    for q in range(i):  # converged neighbours often propagate the very same plane
+                        if (abs(cd[q] - d) <= same_depth * d and cn[q, 0] * cn[i, 0] + cn[q, 1] * cn[i, 1]
+                                + cn[q, 2] * cn[i, 2] > same_cos):
+                            same = q
+                            break
+                    if same >= 0:
+                        for j in range(S):
+                            cm[i, j] = cm[same, j]
+                        continue
+                    for j in range(S):
+                        if not ok[i]:
+                            cm[i, j] = 2.0 + lam_geo * delta_geo
+                            continue
+                        _homography(A, b, j, m, h)
+                        c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
+                        counts[y, COUNT_CANDIDATE] += 1
+                        if use_geo:
+                            c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
+                        cm[i, j] = c
+                # 3. view weights
+                wsum = 0.0
                 for j in range(S):
-                    if wv[j] > 0:
-                        acc += wv[j] * cm[i, j]
-                acc /= wsum
-                if acc < bc:
-                    bc = acc
-                    bi = i
+                    ng = 0
+                    nb = 0
+                    acc = 0.0
+                    mn = 1e30
+                    for i in range(nc):
+                        c = cm[i, j]
+                        if c < mn:
+                            mn = c
+                        if c < tau_good:
+                            ng += 1
+                            acc += math.exp(-c * c * inv2conf)
+                        elif c > tau_bad:
+                            nb += 1
+                    bestj[j] = mn
+                    if ng > n_good and nb < n_bad:
+                        wv[j] = acc / ng
+                    else:
+                        wv[j] = 0.0
+                    wsum += wv[j]
+                if wsum <= 0.0:
+                    # fall back to the two sources that match some candidate best
+                    for _ in range(min(2, S)):
+                        jb = 0
+                        mn = 1e30
+                        for j in range(S):
+                            if wv[j] == 0.0 and bestj[j] < mn:
+                                mn = bestj[j]
+                                jb = j
+                        wv[jb] = 1.0
+                        wsum += 1.0
+                # 4. best candidate by weighted cost
+                bi = 0
+                bc = 1e30
+                for i in range(nc):
+                    acc = 0.0
+                    for j in range(S):
+                        if wv[j] > 0:
+                            acc += wv[j] * cm[i, j]
+                    acc /= wsum
+                    if acc < bc:
+                        bc = acc
+                        bi = i
             d0 = cd[bi]
             n0, n1, n2 = cn[bi, 0], cn[bi, 1], cn[bi, 2]
             if not ok[bi]:
@@ -645,6 +743,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                             continue
                         _homography(A, b, j, m, h)
                         c = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
+                        counts[y, COUNT_REFINE] += 1
                         if use_geo:
                             c += lam_geo * _geo(j, d, gq, Ge, GM, Gg, sdepth, x, y, delta_geo)
                         acc += wv[j] * c

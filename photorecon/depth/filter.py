@@ -5,15 +5,12 @@ view with one partner gets a left-right check. Depth maps in, the count of agree
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..cameras import backproject_depth, invert_rigid, project, transform_points
+from .config import DepthResult, MVSConfig
 from .select import select_sources
-
-if TYPE_CHECKING:  # annotations only: the module imports this one
-    from .mvs import DepthResult, MVSConfig
 
 
 def _nearest_pixel(uv: np.ndarray, z: np.ndarray, intr) -> np.ndarray:

@@ -35,7 +35,7 @@ import logging
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -46,6 +46,7 @@ from ..io.atomic import atomic_path, atomic_write_json
 from ..io.images import write_depth
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
+from .config import MVS_PRESETS, PAIR_SETTINGS, DepthResult, MVSConfig  # noqa: F401 (re-exported)
 from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_count_pinhole, _filter_config,
                      _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
@@ -54,71 +55,6 @@ from ..fields import check_config, expect_config
 from .views import choose_depth_views
 
 log = logging.getLogger("photorecon")
-
-
-@dataclass
-class MVSConfig:
-    """Settings of the multi-view stereo stage (``photorecon mvs``)."""
-
-    method: Literal["patchmatch", "sweep"] = field(default="patchmatch", metadata={"flag": "--mvs", "help": "patchmatch: per-pixel depth and normal (ACMH/ACMM); sweep: fronto-parallel plane sweep (a fast preview)"})
-    n_sources: int = field(default=8, metadata={"help": "source views matched per reference view", "range": (1, 256)})
-    max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)", "range": (64, 65536), "also": (0,)})
-    min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost, 0..1) is below this before the geometric filter (0 = the filter alone decides)", "range": (0.0, 1.0)})
-    min_texture: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the window's grey standard deviation (grey 0..1) is below this (0 = off)", "range": (0.0, 1.0)})
-    texture_rel: float = field(default=0.0, metadata={"help": "patchmatch: no depth where the window's grey std. deviation is below this fraction of the image's median (0 = off)", "range": (0.0, 100.0)})
-    textured_min_confidence: float = field(default=0.0, metadata={"help": "with --texture-rel: the confidence threshold (in place of --min-confidence) of the pixels it keeps", "range": (0.0, 1.0)})
-    min_consistent: int = field(default=2, metadata={"help": "geometric filter: other views that must agree with a depth, at most the views checked (0 = off)", "range": (0, 256)})
-    pair_reproj_px: float = field(default=1.0, metadata={"help": "geometric filter of a view checked against one other view (a stereo pair): left-right check, max forward-backward reprojection error, pixels (0 = as --reproj-px)", "range": (0.0, 1000.0)})
-    filter_sources: int = field(default=16, metadata={"help": "geometric filter: views each depth is checked against (the matching sources, then the next best ranked; 0 = the matching sources only)", "range": (0, 256)})
-    consistency_confidence: bool = field(default=True, metadata={"help": "geometric filter: a depth that k views confirm gets at least confidence 1 - 1/k (its fusion weight)"})
-    reproj_px: float = field(default=2.0, metadata={"help": "geometric filter: max reprojection error, pixels", "range": (0.0, 1000.0), "exclusive_min": True})
-    rel_depth: float = field(default=0.01, metadata={"help": "geometric filter: max relative depth difference (fraction of the depth)", "range": (0.0, 1.0), "exclusive_min": True})
-    plane_reproj_px: float = field(default=10.0, metadata={"help": "geometric filter: a view also confirms a depth within this many pixels when planes and normals agree (0 = off)", "range": (0.0, 1000.0)})
-    depth_near: float | None = field(default=None, metadata={"help": "depth range: the sparse points' 1st percentile times this (default: 0.6 for patchmatch, 1/1.1 for the sweep)", "range": (0.0, 100.0), "exclusive_min": True})
-    depth_far: float | None = field(default=None, metadata={"help": "depth range: the sparse points' 99th percentile times this (default: 1.25 for patchmatch, 1.1 for the sweep)", "range": (0.0, 1000.0), "exclusive_min": True})
-    min_angle_deg: float = field(default=2.0, metadata={"help": "view selection: minimum triangulation angle, degrees", "range": (0.0, 90.0)})
-    pm_levels: int = field(default=3, metadata={"help": "patchmatch: pyramid levels (each halves the image)", "range": (1, 8)})
-    pm_iterations: int = field(default=5, metadata={"help": "patchmatch: iterations at the coarsest level", "range": (1, 100)})
-    pm_fine_iterations: int = field(default=1, metadata={"help": "patchmatch: iterations at each finer level", "range": (0, 100)})
-    pm_final_iterations: int = field(default=1, metadata={"help": "patchmatch: extra geometric-consistency iterations (0 = none)", "range": (0, 100)})
-    pm_final_level: int = field(default=0, metadata={"help": "patchmatch: pyramid level of the extra geometric-consistency round (0 = full resolution; 1 = half: faster)", "range": (0, 7)})
-    pm_skip_consistent: int = field(default=2, metadata={"help": "patchmatch: the extra geometric round skips pixels that this many sources confirm within 1 pixel (0 = off)", "range": (0, 256)})
-    pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius, pixels (with --pm-stride 2, radius 5 = 6x6 samples over 11x11 pixels)", "range": (1, 32)})
-    pm_stride: int = field(default=2, metadata={"help": "patchmatch: the NCC window is sampled every this many pixels", "range": (1, 16)})
-    pm_sparse_min_size: int = field(default=1024, metadata={"help": "patchmatch: levels with a long side of at least this many pixels sample the window as a checkerboard (0 = off)", "range": (0, 65536)})
-    pm_sigma_color: float = field(default=0.1, metadata={"help": "patchmatch: grey-level sigma of the bilateral NCC weight (grey 0..1)", "range": (0.0, 10.0), "exclusive_min": True})
-    pm_fine_sources: int = field(default=0, metadata={"help": "patchmatch: after the coarsest level, match only the best this many source views (0 = all)", "range": (0, 256)})
-    pm_fine_refine: int = field(default=2, metadata={"help": "patchmatch: refinement hypotheses per pixel after the coarsest level (2, 3 or 6: also random ones)", "range": (0, 6)})
-    pm_reuse_cost: bool = field(default=True, metadata={"help": "patchmatch: finer levels start from the coarser level's costs (upsampled) instead of recomputing them"})
-    pm_same_depth: float = field(default=1e-3, metadata={"help": "patchmatch: candidates this close in relative depth (and --pm-same-normal-deg in normal) share one cost evaluation", "range": (0.0, 1.0)})
-    pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees", "range": (0.0, 90.0)})
-    geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
-    geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (per pixel of reprojection error)", "range": (0.0, 100.0)})
-    planar_prior: bool = field(default=False, metadata={"help": "patchmatch: planar prior (ACMP): planes through confident pixels tried where the depth is not confident"})
-    triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed (view selection, depth ranges)"})
-    pm_seed: int = field(default=0, metadata={"help": "patchmatch: random seed (results are deterministic for a seed)", "range": (0, 2**31 - 1)})
-    n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)", "range": (2, 16384)})
-    window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)", "range": (1, 63), "odd": True})
-    best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel", "range": (1, 256)})
-    depth_views: Literal["auto", "all"] = field(default="auto", metadata={"help": "views that get a depth map: auto = enough views to see every sparse point well from --depth-view-coverage directions (a redundant capture computes fewer depth maps; a small one keeps all); all = every view"})
-    depth_view_coverage: int = field(default=3, metadata={"help": "--depth-views auto: chosen views that must see each sparse point (at a good angle and resolution)", "range": (1, 64)})
-
-    def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
-
-
-# Named settings for a caller that needs other values than the defaults (which are for 1600-px photos):
-# "fast" is PatchMatch for small images and previews (the demo): 4 sources, 2 pyramid levels, fewer iterations.
-MVS_PRESETS: dict[str, dict] = {
-    "fast": dict(n_sources=4, pm_levels=2, pm_iterations=4, pm_fine_iterations=1, pm_final_iterations=1,
-                 min_consistent=1, min_confidence=0.2, filter_sources=0),  # one view confirms: keep the cost threshold
-}
-
-
-# PatchMatch on a view matched against one other view only (a stereo pair), where no third view outvotes a window
-# that straddles a depth edge: smaller, denser and sharper windows, unless set otherwise (synthetic rectified
-# pairs at 640x480, knot / room, depth within 1% on the co-visible pixels: 0.88 / 0.90 -> 0.94 / 0.95)
-PAIR_SETTINGS = {"pm_radius": 3, "pm_stride": 1, "pm_sigma_color": 0.05}
 
 
 def _pair_config(cfg: MVSConfig, plan: dict) -> MVSConfig:
@@ -131,15 +67,6 @@ def _pair_config(cfg: MVSConfig, plan: dict) -> MVSConfig:
         log.info("mvs: every view has one source view (a stereo pair): %s",
                  ", ".join(f"{k} {v}" for k, v in changes.items()))
     return dataclasses.replace(cfg, **changes)
-
-
-@dataclass
-class DepthResult:
-    depth: np.ndarray  # (h, w) float32 at working resolution
-    confidence: np.ndarray | None  # (h, w) float32 in [0, 1]; None for a filter's source view (not read)
-    view: View  # the reference view at working resolution
-    sources: list[str]
-    normal: np.ndarray | None = None  # (h, w, 3) float16 unit normals, reference camera frame (patchmatch)
 
 
 def _gray(img: np.ndarray) -> np.ndarray:
@@ -335,7 +262,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
     ``"filter"`` (a view's geometric consistency against its sources, then its files in ``out``). A task whose
     output is already in ``work`` (a retry, a resumed run) returns at once."""
     cfg = ctx.cfg
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()  # CPU: all threads of this process (the kernels' too)
     if kind == "sweep":
         if _raw_path(ctx, name, "depth").is_file():
             return {"seconds": 0.0, "reused": True}
@@ -343,7 +270,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         src = [(_working_grey(ctx, s), ctx.plan[s][0]) for s in srcs]
         depth, conf = plane_sweep(_working_grey(ctx, name), ref_w, src, rng[0], rng[1], cfg)
         _finish_depth(ctx, name, depth, conf, None)
-        return {"seconds": time.perf_counter() - t0}
+        return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0}
     if kind == "pm":
         from .patchmatch import PatchMatchParams, pm_rounds, pm_view_round
 
@@ -365,7 +292,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             _save(ctx.work / f"r{r}" / f"{name}.normal.npy", normal)
             _save(ctx.work / f"r{r}" / f"{name}.cost.npy", cost)
             _save(done, depth)
-        return {"seconds": seconds}
+        return {"seconds": seconds, "cpu_seconds": time.process_time() - c0}
     if kind == "filter":
         res = _raw_result(ctx, name, normal=True)
         before = int((res.depth > 0).sum())
@@ -444,6 +371,8 @@ class MVSResult(Result):
     triangulation_seconds: float
     consistency: dict  # the geometric consistency filter's statistics
     seconds_per_view: float
+    cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
+    cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
     per_view: dict  # view name -> valid_fraction, sources, size
     reused_tasks: int  # tasks whose output an interrupted run had left
     task_seconds: dict  # task key -> seconds
@@ -524,6 +453,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     _MASK_CACHE.clear()
     t_all = time.perf_counter() - t0
     task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
+    task_cpu = sum(r.get("cpu_seconds", 0.0) for k, r in results.items() if not k.startswith("filter:"))
+    mp_sources = sum(len(srcs) * wv.intrinsics.width * wv.intrinsics.height / 1e6 for wv, srcs, _, _ in views.values())
     consistency: dict = {}
     filtered = {k.partition(":")[2]: r for k, r in results.items() if k.startswith("filter:")}
     if cfg.min_consistent > 0:
@@ -552,7 +483,9 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     report = MVSResult(views=len(stats), skipped=skipped, method=cfg.method, depth_seconds=task_seconds,
                        wall_seconds=t_all, graph_seconds=t_graph, workers=ex.workers,
                        sparse_points=int(len(model.points)), triangulated=triangulated, triangulation_seconds=t_tri,
-                       consistency=consistency, seconds_per_view=task_seconds / max(len(views), 1), per_view=stats,
+                       consistency=consistency, seconds_per_view=task_seconds / max(len(views), 1),
+                       cpu_seconds_per_view=task_cpu / max(len(views), 1),
+                       cpu_seconds_per_mp_source=task_cpu / mp_sources if mp_sources else 0.0, per_view=stats,
                        reused_tasks=sum(1 for r in results.values() if r.get("reused")),
                        task_seconds={k: round(r["seconds"], 4) for k, r in results.items()},
                        depth_views=choice.to_dict())

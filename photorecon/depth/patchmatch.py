@@ -168,7 +168,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     geo: tuple[list[np.ndarray], list[View]] | None = None, seed: int = 0,
                     init_cost: np.ndarray | None = None, n_refine: int = 6,
                     prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False,
-                    skip_consistent: int = 0, active: np.ndarray | None = None):
+                    skip_consistent: int = 0, active: np.ndarray | None = None, counts: dict | None = None,
+                    select_current: bool = False):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
@@ -179,6 +180,11 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     result (the last round). ``skip_consistent``: with ``geo``, pixels whose hypothesis at least this many sources'
     depth maps confirm within 1 pixel (forward-backward) are left as they are (0 = none).
     ``active``: (H, W) bool, the pixels to compute (the view's mask), else all; the others get depth 0.
+    ``select_current``: view weights from each pixel's current hypothesis, the other candidates evaluated in
+    the weighted sources only (for hypotheses that start good: finer levels), else ACMH's joint view selection.
+    ``counts``: a dict that gets the work done, as the number of NCC evaluations: ``"initial"`` (the starting
+    costs) and ``"iterations"``, per iteration a dict (pixels computed, pixels skipped as converged, evaluations
+    of the candidates and of the refinement) (``count_work``).
     Returns (depth, normal, cost) at ``ref``'s resolution."""
     k = _kernels()
     cfg = params.cfg
@@ -212,6 +218,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         cost[depth <= 0] = 2.0 + lam * delta
     else:
         cost = np.empty((H, W), np.float32)
+        if counts is not None:
+            counts["initial"] = counts.get("initial", 0) + int((depth > 0).sum()) * len(sources)
         k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta,
                        params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, depth, normal, cost)
     if prior is not None:  # planar prior (ACMP-style): hypotheses from triangulated confident pixels
@@ -225,7 +233,9 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         log.debug("planar prior: %s", st)
     if active is not None:
         depth[~active] = -1.0
+    work = np.zeros((H, k.N_COUNTS), np.int64)
     for it in range(iterations):
+        work[:] = 0
         tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
         pert = max(0.02 * 0.5 ** it, 0.002)
         for color in (0, 1):
@@ -234,7 +244,9 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
                       float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), 1.0, int(skip_consistent),
-                      depth, normal, cost)
+                      bool(select_current), depth, normal, cost, work)
+        if counts is not None:
+            counts.setdefault("iterations", []).append(count_work(work))
     if prior is not None and prior_after:
         from .planar import textureless
 
@@ -244,6 +256,15 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     if active is not None:
         depth[depth < 0] = 0.0
     return depth, normal, cost
+
+
+def count_work(work: np.ndarray) -> dict[str, int]:
+    """``pm_pass``'s per-row counts, summed: pixels computed, pixels skipped as converged, NCC evaluations of
+    the candidates and of the refinement."""
+    k = _kernels()
+    t = work.sum(axis=0)
+    return {"pixels": int(t[k.COUNT_PIXELS]), "skipped": int(t[k.COUNT_SKIPPED]),
+            "candidate_evals": int(t[k.COUNT_CANDIDATE]), "refine_evals": int(t[k.COUNT_REFINE])}
 
 
 def pm_rounds(cfg) -> list[tuple[int, bool, int]]:
@@ -320,7 +341,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
         params.at_size(ref), iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
         init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
         skip_consistent=cfg.pm_skip_consistent if not first and rounds[r - 1][0] == lvl else 0,
-        active=mask(name, ref) if mask is not None else None)
+        active=mask(name, ref) if mask is not None else None, select_current=not first and cfg.pm_fine_views == "current")
     return depth, normal, cost, ref
 
 

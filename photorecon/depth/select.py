@@ -4,14 +4,10 @@ the view sees, or where the cameras' optical axes converge).
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from ..cameras import View
-
-if TYPE_CHECKING:  # annotations only: the module imports this one
-    from .mvs import MVSConfig
+from .config import MVSConfig
 
 
 def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:

@@ -3,15 +3,11 @@ fronto-parallel planes uniform in inverse depth, the best ``best_k`` sources agg
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import cv2
 import numpy as np
 
 from ..cameras import View, invert_rigid
-
-if TYPE_CHECKING:  # annotations only: the module imports this one
-    from .mvs import MVSConfig
+from .config import MVSConfig
 
 
 def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, View]], zmin: float, zmax: float,
