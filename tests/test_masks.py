@@ -278,7 +278,8 @@ def test_sfm_masks_reach_feature_extraction(tmp_path):
                                                 (v.intrinsics.cx, v.intrinsics.cy)))
         m = truth[f"{v.name}.png"][oy:oy + und.shape[0], ox:ox + und.shape[1]]
         assert (und != m).mean() < 0.01
-    cams = [{"model": "SIMPLE_RADIAL", "params": "", "images": sorted(truth)}]
+    h, w = next(iter(truth.values())).shape[:2]
+    cams = [{"model": "SIMPLE_RADIAL", "params": "", "images": sorted(truth), "size": [w, h]}]
     extract(out / "colmap" / "images", tmp_path / "plain.db", cams, SfMConfig())
     outside, total = keypoints_outside(tmp_path / "plain.db")
     assert outside > 1000  # the backdrop is textured: without masks it has keypoints

@@ -291,8 +291,6 @@ def sift_threads(cameras: list[dict], cfg: SfMConfig) -> int:
 
     per_thread = 0
     for cam in cameras:
-        if "size" not in cam:  # a camera group without its image size: no estimate
-            continue
         s = int(cam.get("sift_upscale", 1))
         w, h = (x * s for x in cam["size"])
         scale = min(1.0, cfg.max_image_size * s / max(w, h))
