@@ -3,7 +3,8 @@
 later processes load them in well under a second instead of compiling them (tens of seconds on two cores).
 
 The kernels run through the same code paths as a reconstruction (PatchMatch MVS with its geometric filter and
-the planar prior on a tiny synthetic scene, then weighted TSDF fusion of its depth maps), so they are compiled
+the planar prior on a tiny synthetic scene, then weighted TSDF fusion of its depth maps and the photometric
+refinement of that mesh), so they are compiled
 for the argument types a real run passes; the two PatchMatch kernels only the tests and diagnostics call
 (``ncc_at``, ``photometric_cost``) run on arrays of the same types. ``kernels()`` lists every compiled function
 of the package: ``tests/test_warmup.py`` checks that ``warm_up`` reaches each one.
@@ -80,6 +81,7 @@ def warm_up() -> dict:
     from .depth.mvs import MVS_PRESETS, MVSConfig, run_mvs
     from .fusion import FusionConfig, fuse, load_frames
     from .io.dataset import Dataset
+    from .mesh.refine import RefineConfig, refine_dataset
     from .synthetic import SynthConfig, synthesize
 
     entries = entry_kernels()
@@ -99,7 +101,9 @@ def warm_up() -> dict:
                                                   pm_final_iterations=1, planar_prior=True, min_consistent=1))
             dsd = Dataset.open(t, depth_dir=Path(t) / "d")
             cfg = FusionConfig(voxels_across=64)
-            fuse(load_frames(dsd, cfg), cfg, dsd.model.points)
+            mesh = fuse(load_frames(dsd, cfg), cfg, dsd.model.points)
+            # the photometric refinement (--refine) of that mesh against the photos
+            refine_dataset(mesh, ds, RefineConfig(refine=True, refine_levels=1, refine_iterations=1))
         _tiny_pm_calls()
     finally:
         logging.getLogger("photorecon").setLevel(level)
