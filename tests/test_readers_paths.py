@@ -149,14 +149,20 @@ def _strecha_scene(tmp, attack):
     return ["reconstruct", images, "--poses", cams]
 
 
-def _dataset_scene(tmp, attack, key):
-    """A dataset folder (``mvs``/``fuse`` read it): its transforms.json names depth maps and masks."""
+def _dataset_with_depth(tmp):
+    """``tmp/in/DS`` with the three views' images and constant depth maps; (its folder, the views)."""
     ds = tmp / "in" / "DS"
     views = _views()
     (ds / "depth").mkdir(parents=True)
     for i, v in enumerate(views):
         _png(ds / "images" / v.image_file, i)
         np.save(ds / "depth" / f"{v.name}.npy", np.full((H, W), 4.0, np.float32))
+    return ds, views
+
+
+def _dataset_scene(tmp, attack, key):
+    """A dataset folder (``mvs``/``fuse`` read it): its transforms.json names depth maps and masks."""
+    ds, views = _dataset_with_depth(tmp)
     write_transforms(views, ds / "transforms.json", depth_dir="depth", mask_dir="masks")
     data = json.loads((ds / "transforms.json").read_text())
     secret = tmp / "outside" / ("x.npy" if key == "depth_file_path" else "x.png")
@@ -182,12 +188,7 @@ def _dataset_colmap_scene(tmp, attack):
 
 def _dataset_files_scene(tmp, attack, folder):
     """A dataset's own depth/NAME.npy or masks/NAME.png, a link to a file elsewhere."""
-    ds = tmp / "in" / "DS"
-    views = _views()
-    (ds / "depth").mkdir(parents=True)
-    for i, v in enumerate(views):
-        _png(ds / "images" / v.image_file, i)
-        np.save(ds / "depth" / f"{v.name}.npy", np.full((H, W), 4.0, np.float32))
+    ds, views = _dataset_with_depth(tmp)
     write_colmap_text(SparseModel(views), ds / "sparse" / "0")
     secret = tmp / "outside" / ("x.npy" if folder == "depth" else "x.png")
     if folder == "depth":
