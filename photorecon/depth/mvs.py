@@ -296,7 +296,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
     if kind == "filter":
         res = _raw_result(ctx, name, normal=True)
         before = int((res.depth > 0).sum())
-        err_sum, err_n = 0.0, 0
+        err_sum, err_n, filled = 0.0, 0, 0
         if cfg.min_consistent > 0:
             checked = dataclasses.replace(res, sources=_filter_sources(ctx, name))
             sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0, confidence=False) for s in checked.sources}
@@ -304,8 +304,19 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             res.depth[cnt < min(cfg.min_consistent, len(sources))] = 0  # no more confirming views than there are
             if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
                 res.confidence = np.maximum(res.confidence, 1.0 - 1.0 / np.maximum(cnt, 1)).astype(np.float32)
+            if cfg.fill_holes and res.normal is not None:  # PatchMatch: gaps filled with confirmed neighbours' planes
+                from .fill import fill_holes
+
+                mask = _level_mask(ctx, name, _plan_view(ctx, name))
+                if mask is not None and mask.shape != res.depth.shape:
+                    mask = cv2.resize(mask.astype(np.uint8), res.depth.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+                images = {s: (_working_grey(ctx, s), ctx.plan[s][0]) for s in ctx.plan[name][1]}
+                _, fill_stats = fill_holes(dataclasses.replace(res, sources=checked.sources), sources,
+                                           _filter_config(cfg, len(sources)), min(cfg.min_consistent, len(sources)),
+                                           _working_grey(ctx, name), images, mask)
+                filled = fill_stats["filled"]
         d = res.depth
-        info = {"before": before, "after": int((d > 0).sum()), "err_sum": err_sum, "err_n": err_n,
+        info = {"before": before, "after": int((d > 0).sum()), "filled": filled, "err_sum": err_sum, "err_n": err_n,
                 "seconds": time.perf_counter() - t0}
         if not np.count_nonzero(d):
             return {**info, "written": False}
