@@ -51,7 +51,7 @@ class MVSConfig:
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees", "range": (0.0, 90.0)})
     geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
     geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (per pixel of reprojection error)", "range": (0.0, 100.0)})
-    fill_holes: bool = field(default=False, metadata={"help": "geometric filter: fill small gaps between kept depths with a neighbouring pixel's plane where other views confirm it as they confirm any depth (photorecon.depth.fill)"})
+    fill_holes: bool = field(default=False, metadata={"help": "geometric filter: fill small gaps between kept depths with a neighbouring pixel's plane where the other views' depth maps confirm it as they confirm any depth and the images agree"})
     fill_max_hole: int = field(default=400, metadata={"help": "--fill-holes: largest gap filled, pixels at the working resolution", "range": (1, 1 << 24)})
     planar_prior: bool = field(default=False, metadata={"help": "patchmatch: planar prior (ACMP): planes through confident pixels tried where the depth is not confident"})
     triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed (view selection, depth ranges)"})

@@ -12,15 +12,20 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
    in each of 8 directions, extended to the pixel (fronto-parallel where the plane is seen edge-on); only
    neighbours whose straight path to the pixel runs through the hole.
 3. **Evidence**: each candidate goes through the same geometric test as PatchMatch's own depths
-   (``filter.consistency_count``, against the same views, with the same tolerances): it is kept when at least
-   as many views confirm it as the filter requires. Across a depth edge the far side's plane is confirmed and
-   the near side's is not (that is why the pixel was dropped); on one smooth surface the candidates agree.
-4. **Decision**: a pixel takes the confirmed candidate with the most confirming views when all the confirmed
-   candidates agree within ``rel_depth`` (two surfaces confirmed at one pixel: no depth); its normal with it,
-   its confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
+   (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
+   must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
+   3x3 neighbourhood and the matching sources' around its projection (the best source) must be at most
+   ``PHOTO_MAX`` and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
+   Next to a depth edge the other view's depth map is "fattened" like the reference's, so the near side's plane
+   can be confirmed geometrically where the pixel shows the far side: the images tell them apart.
+4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
+   candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
+   confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
 
-Nothing is filled from the image alone: a filled depth has the same multi-view support as any kept depth, so
-a hole that the other views do not see (an occlusion) or see wrongly stays a hole.
+A filled depth has the same multi-view support as any kept depth: a gap that the other views do not see (an
+occlusion) or see otherwise stays a gap. Measured on synthetic rectified pairs (``tools/bench_stereo.py``) it
+adds correct depth next to depth edges, and about 1.4% of the filled pixels are off by more than 2 px of
+disparity (the kept depths: 0.2-0.5%).
 """
 from __future__ import annotations
 

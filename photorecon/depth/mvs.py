@@ -22,6 +22,9 @@ For each reference view:
    apart (``consistency_count``; surfaces seen at grazing angles). A depth that k views confirm gets at least
    confidence 1 - 1/k (``consistency_confidence``), its weight in TSDF fusion. A view checked against one other
    view (a stereo pair) gets a left-right check instead: within ``pair_reproj_px`` pixels, no plane test.
+5. **Hole filling** (``fill_holes``, PatchMatch): the small gaps the filter leaves (up to ``fill_max_hole``
+   pixels) take a confirmed neighbour's plane where the same consistency test and the images accept it
+   (``fill.fill_holes``).
 
 Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``depth/NAME.conf.npy``
 (float32 confidence in [0, 1]) and ``depth/NAME.png`` (preview).
