@@ -3,6 +3,7 @@ a procedural texture; the reference depth map gets holes, the other view's depth
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage as ndi
 
 from photorecon.cameras import Intrinsics, View
 from photorecon.depth.config import DepthResult, MVSConfig
@@ -44,7 +45,8 @@ def _render(center_x: float, planes: list[tuple[np.ndarray, float, tuple]], flat
         depth[nearer] = t[nearer]
         normal[nearer] = -n / np.linalg.norm(n)
     X = C + d * depth[..., None]
-    img = _texture(X[..., 0], X[..., 1], flat)
+    noise = np.random.default_rng(int(center_x * 100)).normal(0, 0.005, (H, W))  # camera noise
+    img = (_texture(X[..., 0], X[..., 1], flat) + noise).astype(np.float32)
     return depth.astype(np.float32), normal.astype(np.float16), img
 
 
@@ -55,10 +57,12 @@ def _fill(planes, hole: np.ndarray, flat=None, max_hole: int = 400, wrong_depth:
     dA, nA, gA = _render(0.0, planes, flat)
     dB, nB, gB = _render(B, planes, flat)
     depth = dA.copy()
-    if wrong_depth is not None:  # both depth maps agree on a plane that the images do not show
-        depth[:] = wrong_depth
+    if wrong_depth is not None:  # both depth maps agree on a plane around the hole that the images do not show
+        ring = ndi.binary_dilation(hole, iterations=4)
+        depth[ring] = wrong_depth
         dB = np.full_like(dB, wrong_depth)
-        nA[:] = nB[:] = (0, 0, -1)
+        nA[ring] = (0, 0, -1)
+        nB[:] = (0, 0, -1)
     truth = depth.copy()
     depth[hole] = 0
     r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
@@ -76,7 +80,7 @@ def _box(y0, y1, x0, x1) -> np.ndarray:
 
 def test_textureless_hole_between_confirmed_neighbours_is_filled_to_the_truth():
     hole = _box(30, 42, 44, 56)  # 144 pixels on a flat grey patch of the slanted plane
-    flat = (-0.05, 0.25, -0.25, 0.25)  # world x, y around the hole's pixels (about 2 away: 80 / 2 = 40 px per unit)
+    flat = (-0.2, 0.3, -0.3, 0.3)  # world x, y around the hole's pixels (about 2 away: 40 px per unit)
     r, truth, filled, stats = _fill([TILTED], hole, flat)
     assert stats["hole_pixels"] == hole.sum()
     assert filled[hole].mean() > 0.95, filled[hole].mean()
@@ -128,8 +132,8 @@ def test_hole_at_a_depth_edge_is_filled_only_where_the_other_view_sees_it():
 
 
 def test_plane_confirmed_by_depth_maps_but_not_by_the_images_is_not_filled():
-    # both depth maps say z = 1.2, the images show the slanted plane at about 2: a candidate that the other
-    # view's depth confirms and its image contradicts
+    # around the hole both depth maps say z = 1.2, the images show the slanted plane at about 2: candidates that
+    # the other view's depth confirms and its image contradicts
     hole = _box(30, 40, 40, 52)
     r, _, filled, _ = _fill([TILTED], hole, wrong_depth=1.2)
     assert not filled.any()

@@ -14,8 +14,9 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
 3. **Evidence**: each candidate goes through the same geometric test as PatchMatch's own depths
    (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
    must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
-   3x3 neighbourhood and the matching sources' around its projection (the best source) must be at most
-   ``PHOTO_MAX`` and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
+   3x3 neighbourhood and the matching sources' around its projection (the best source) must be at most the
+   ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths (their noise level: 0.007-0.012 on
+   the synthetic pairs) and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
    Next to a depth edge the other view's depth map is "fattened" like the reference's, so the near side's plane
    can be confirmed geometrically where the pixel shows the far side: the images tell them apart.
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
@@ -38,8 +39,9 @@ from .config import DepthResult, MVSConfig
 from .filter import consistency_count
 
 FILL_CONFIDENCE = 0.25  # a filled pixel's lowest confidence (its TSDF weight): a pair confirms with k = 1
-PHOTO_MAX = 0.02  # a candidate's photometric error (mean absolute grey difference, 3x3, grey 0..1) at most this ...
+PHOTO_QUANTILE = 0.95  # a candidate's photometric error at most this quantile of the kept depths' own errors ...
 PHOTO_RATIO = 1.2  # ... and at most this factor above the lowest of the pixel's candidates (confirmed or not)
+PHOTO_SAMPLES = 20000  # kept depths sampled for that quantile
 EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to the pixel's ray) -> fronto-parallel
 MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
 DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
@@ -186,8 +188,13 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         cnt_c[k, ok] = cnt[py[ok], px[ok]]
         q_c[k, ok] = np.stack([qy[ok], qx[ok]], 1)
         e_c[k, ok] = photometric_error(grey, r, images, py[ok], px[ok], z)
+    vy, vx = np.nonzero(valid)
+    step = max(1, len(vy) // PHOTO_SAMPLES)
+    e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
+    e_kept = e_kept[np.isfinite(e_kept)]
+    e_max = float(np.quantile(e_kept, PHOTO_QUANTILE)) if len(e_kept) else 0.0
     e_min = np.min(np.where(z_c > 0, e_c, np.inf), axis=0)
-    confirmed = (cnt_c >= need) & (z_c > 0) & (e_c <= PHOTO_MAX) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
+    confirmed = (cnt_c >= need) & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
     has = confirmed.any(0)
     lo = np.min(np.where(confirmed, z_c, np.inf), axis=0)
     hi = np.max(np.where(confirmed, z_c, -np.inf), axis=0)
@@ -207,4 +214,5 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     filled[fy, fx] = True
     stats["filled"] = int(len(sel))
     stats["conflicting"] = int((has & ~agree).sum())
+    stats["photo_max"] = e_max
     return filled, stats
