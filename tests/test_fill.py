@@ -139,3 +139,30 @@ def test_plane_confirmed_by_depth_maps_but_not_by_the_images_is_not_filled():
     assert not filled.any()
     r, _, filled, _ = _fill([TILTED], hole)  # with the right depth maps it is filled
     assert filled[hole].mean() > 0.95
+
+
+def test_stereo_pair_fill_adds_correct_depth_without_more_wrong_depth(tmp_path_factory):
+    """run_mvs on a rectified pair of the room, without and with --fill-holes: the fill answers more of the
+    pixels both views see within 2 px of disparity, and the share of answers off by more than 2 px does not grow."""
+    from photorecon.depth.mvs import MVSConfig as Cfg, run_mvs
+    from photorecon.io.dataset import Dataset, read_model
+    from photorecon.metrics import covisible, disparity_scores
+    from photorecon.testing import synth_scene
+
+    root = synth_scene(tmp_path_factory, "fill_pair", scene="room", rig="stereo", width=240, height=180,
+                       radius=2.6, elevation=35.0, baseline=0.3)
+    ds = Dataset.open(root)
+    a, b = read_model(root / "sparse" / "0").views
+    gt = [np.load(root / "depth" / f"{v.name}.npy") for v in (a, b)]
+    cov = covisible(gt[0], a, gt[1], b)
+    fxb = a.intrinsics.fx * np.linalg.norm(a.center - b.center)
+    scores = {}
+    for fill in (False, True):
+        out = tmp_path_factory.mktemp(f"fill_{fill}")
+        rep = run_mvs(ds, out, Cfg(fill_holes=fill, n_sources=1, pm_levels=2))
+        assert rep.views == 2
+        d = np.load(out / f"{a.name}.npy")
+        scores[fill] = disparity_scores(np.where(d > 0, fxb / np.maximum(d, 1e-12), np.nan), fxb / np.maximum(gt[0], 1e-12), cov)
+    before, after = scores[False], scores[True]
+    assert after["within"] > before["within"] + 0.003, (before, after)
+    assert after["bad"] <= before["bad"] + 0.001, (before, after)
