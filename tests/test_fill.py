@@ -67,7 +67,7 @@ def _fill(planes, hole: np.ndarray, flat=None, max_hole: int = 400, wrong_depth:
     depth[hole] = 0
     r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
     src = {"b": DepthResult(dB, None, _view("b", B), ["a"], nB)}
-    cfg = MVSConfig(fill_max_hole=max_hole, reproj_px=1.0, plane_reproj_px=0.0)
+    cfg = MVSConfig(fill_max_gap=max_hole, reproj_px=1.0, plane_reproj_px=0.0)
     filled, stats = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
     return r, truth, filled, stats
 
@@ -142,7 +142,7 @@ def test_plane_confirmed_by_depth_maps_but_not_by_the_images_is_not_filled():
 
 
 def test_stereo_pair_fill_adds_correct_depth_without_more_wrong_depth(tmp_path_factory):
-    """run_mvs on a rectified pair of the room, without and with --fill-holes: the fill answers more of the
+    """run_mvs on a rectified pair of the room, without and with --fill-gaps on: the fill answers more of the
     pixels both views see within 2 px of disparity, and the share of answers off by more than 2 px does not grow."""
     from photorecon.depth.mvs import MVSConfig as Cfg, run_mvs
     from photorecon.io.dataset import Dataset, read_model
@@ -159,7 +159,7 @@ def test_stereo_pair_fill_adds_correct_depth_without_more_wrong_depth(tmp_path_f
     scores = {}
     for fill in (False, True):
         out = tmp_path_factory.mktemp(f"fill_{fill}")
-        rep = run_mvs(ds, out, Cfg(fill_holes=fill, n_sources=1, pm_levels=2))
+        rep = run_mvs(ds, out, Cfg(fill_gaps="on" if fill else "off", n_sources=1, pm_levels=2))
         assert rep.views == 2
         d = np.load(out / f"{a.name}.npy")
         scores[fill] = disparity_scores(np.where(d > 0, fxb / np.maximum(d, 1e-12), np.nan), fxb / np.maximum(gt[0], 1e-12), cov)

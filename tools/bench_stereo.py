@@ -102,7 +102,7 @@ def main() -> None:
     ap.add_argument("--json")
     ap.add_argument("--keep", help="keep the datasets and reconstructions in this folder")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="override an MVSConfig setting, e.g. --set fill_holes=True (repeatable)")
+                    help="override an MVSConfig setting, e.g. --set fill_gaps='"off"' (repeatable)")
     args = ap.parse_args()
     args.mvs_over = {k.strip(): ast.literal_eval(v.strip()) for k, _, v in (s.partition("=") for s in args.set)}
     progress.set_enabled(False)

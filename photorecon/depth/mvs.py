@@ -22,9 +22,9 @@ For each reference view:
    apart (``consistency_count``; surfaces seen at grazing angles). A depth that k views confirm gets at least
    confidence 1 - 1/k (``consistency_confidence``), its weight in TSDF fusion. A view checked against one other
    view (a stereo pair) gets a left-right check instead: within ``pair_reproj_px`` pixels, no plane test.
-5. **Hole filling** (``fill_holes``, PatchMatch): the small gaps the filter leaves (up to ``fill_max_hole``
-   pixels) take a confirmed neighbour's plane where the same consistency test and the images accept it
-   (``fill.fill_holes``).
+5. **Gap filling** (``fill_gaps``, PatchMatch; auto: on for a stereo pair): the small gaps the filter leaves
+   (up to ``fill_max_gap`` pixels) take a confirmed neighbour's plane where the same consistency test and the
+   images accept it (``fill.fill_holes``).
 
 Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``depth/NAME.conf.npy``
 (float32 confidence in [0, 1]) and ``depth/NAME.png`` (preview).
@@ -50,6 +50,7 @@ from ..io.images import write_depth
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
 from .config import MVS_PRESETS, PAIR_SETTINGS, DepthResult, MVSConfig  # noqa: F401 (re-exported)
+from .fill import fill_on
 from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_count_pinhole, _filter_config,
                      _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
@@ -307,7 +308,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             res.depth[cnt < min(cfg.min_consistent, len(sources))] = 0  # no more confirming views than there are
             if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
                 res.confidence = np.maximum(res.confidence, 1.0 - 1.0 / np.maximum(cnt, 1)).astype(np.float32)
-            if cfg.fill_holes and res.normal is not None:  # PatchMatch: gaps filled with confirmed neighbours' planes
+            if res.normal is not None and fill_on(cfg, len(sources)):  # PatchMatch: gaps filled with confirmed planes
                 from .fill import fill_holes
 
                 mask = _level_mask(ctx, name, _plan_view(ctx, name))
