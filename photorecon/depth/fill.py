@@ -122,13 +122,25 @@ def _extend_plane(depth: np.ndarray, normal: np.ndarray | None, Kinv: np.ndarray
     return np.where(bad, zq, z)
 
 
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``img`` at the sub-pixel positions (x, y), bilinear, clamped at the border."""
+    h, w = img.shape
+    x = np.clip(x, 0, w - 1)
+    y = np.clip(y, 0, h - 1)
+    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2) if w > 1 else np.zeros(len(x), np.int64)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2) if h > 1 else np.zeros(len(y), np.int64)
+    fx, fy = x - x0, y - y0
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
 def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[np.ndarray, object]],
                       py: np.ndarray, px: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Per pixel (py, px) at depth z of view ``r`` (grey image ``grey``): the mean absolute grey difference of its
     3x3 neighbourhood and the source images' (``images``: name -> (grey, view)) around its projection, the
     lowest over the sources (occlusion-robust); +inf where it projects into none."""
-    import cv2
-
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     X = (np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T) * z[:, None]
     world_from_ref = np.linalg.inv(r.view.cam_from_world)
@@ -146,9 +158,8 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
             v = K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2]
         hs, ws = img.shape
         ok = (Xs[:, 2] > 0) & (u >= 0) & (v >= 0) & (u <= ws - 1) & (v <= hs - 1)
-        mx = np.stack([u + ox for _, ox in offs], 1).astype(np.float32)
-        my = np.stack([v + oy for oy, _ in offs], 1).astype(np.float32)
-        src = cv2.remap(img, np.nan_to_num(mx), np.nan_to_num(my), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        u0, v0 = np.nan_to_num(u), np.nan_to_num(v)
+        src = np.stack([_bilinear(img, u0 + ox, v0 + oy) for oy, ox in offs], 1)
         e = np.abs(src - ref).mean(1)
         best = np.where(ok, np.minimum(best, e), best)
     return best
