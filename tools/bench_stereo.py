@@ -89,6 +89,14 @@ def run_pair(scene: str, rig: str, args, tmp: Path) -> dict:
     return row
 
 
+def _value(text: str):
+    """A --set value: a Python literal (1, 0.5, True), else the text itself (a choice such as off)."""
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default="knot,room,blob")
@@ -102,9 +110,9 @@ def main() -> None:
     ap.add_argument("--json")
     ap.add_argument("--keep", help="keep the datasets and reconstructions in this folder")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="override an MVSConfig setting, e.g. --set fill_gaps='"off"' (repeatable)")
+                    help="override an MVSConfig setting, e.g. --set fill_gaps=off (repeatable)")
     args = ap.parse_args()
-    args.mvs_over = {k.strip(): ast.literal_eval(v.strip()) for k, _, v in (s.partition("=") for s in args.set)}
+    args.mvs_over = {k.strip(): _value(v.strip()) for k, _, v in (s.partition("=") for s in args.set)}
     progress.set_enabled(False)
     rows = []
     with tempfile.TemporaryDirectory() as t:
