@@ -50,7 +50,7 @@ from ..io.images import write_depth
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
 from .config import MVS_PRESETS, PAIR_SETTINGS, DepthResult, MVSConfig  # noqa: F401 (re-exported)
-from .fill import fill_on
+from .fill import fill_holes, fill_on
 from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_count_pinhole, _filter_config,
                      _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
@@ -196,6 +196,14 @@ def _level_mask(ctx: _MVSContext, name: str, lv: View) -> np.ndarray | None:
     return cv2.resize(m.astype(np.float32), lv.intrinsics.size, interpolation=cv2.INTER_AREA) > 0
 
 
+def _mask_at(ctx: _MVSContext, name: str, shape: tuple[int, int]) -> np.ndarray | None:
+    """View ``name``'s mask (True = foreground) at ``shape`` (h, w), or None without one."""
+    mask = _level_mask(ctx, name, _plan_view(ctx, name))
+    if mask is not None and mask.shape != tuple(shape):
+        mask = cv2.resize(mask.astype(np.uint8), tuple(shape)[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    return mask
+
+
 def _level_image(ctx: _MVSContext, name: str, lv: View) -> np.ndarray:
     g = _working_grey(ctx, name)
     if g.shape != (lv.intrinsics.height, lv.intrinsics.width):
@@ -224,10 +232,7 @@ def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarr
     """A view's unfiltered result: low-confidence, non-finite and masked pixels to 0; to ``work/raw`` (depth last:
     the file that says the view is done)."""
     cfg = ctx.cfg
-    mask = _level_mask(ctx, name, _plan_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
-    h, w = depth.shape
-    if mask is not None and mask.shape != (h, w):
-        mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    mask = _mask_at(ctx, name, depth.shape)  # masks/NAME.png or the image's alpha: no depth there
     min_conf = cfg.min_confidence
     if normal is not None and not cfg.planar_prior and (cfg.min_texture > 0 or cfg.texture_rel > 0):
         from .planar import relative_texture, textureless  # PatchMatch: no evidence where the window is flat
@@ -309,15 +314,10 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
                 res.confidence = np.maximum(res.confidence, 1.0 - 1.0 / np.maximum(cnt, 1)).astype(np.float32)
             if res.normal is not None and fill_on(cfg, len(sources)):  # PatchMatch: gaps filled with confirmed planes
-                from .fill import fill_holes
-
-                mask = _level_mask(ctx, name, _plan_view(ctx, name))
-                if mask is not None and mask.shape != res.depth.shape:
-                    mask = cv2.resize(mask.astype(np.uint8), res.depth.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
                 images = {s: (_working_grey(ctx, s), ctx.plan[s][0]) for s in ctx.plan[name][1]}
                 _, fill_stats = fill_holes(dataclasses.replace(res, sources=checked.sources), sources,
                                            _filter_config(cfg, len(sources)), min(cfg.min_consistent, len(sources)),
-                                           _working_grey(ctx, name), images, mask)
+                                           _working_grey(ctx, name), images, _mask_at(ctx, name, res.depth.shape))
                 filled = fill_stats["filled"]
         d = res.depth
         info = {"before": before, "after": int((d > 0).sum()), "filled": filled, "err_sum": err_sum, "err_n": err_n,
@@ -384,7 +384,7 @@ class MVSResult(Result):
     sparse_points: int
     triangulated: bool  # sparse points triangulated from SIFT matches with the given cameras
     triangulation_seconds: float
-    consistency: dict  # the geometric consistency filter's statistics
+    consistency: dict  # the geometric consistency filter's statistics (kept_fraction counts the filled gaps, filled_fraction their share)
     seconds_per_view: float
     cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
     cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
@@ -477,6 +477,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         consistency["mean_reprojection_px"] = sum(r["err_sum"] for r in filtered.values()) / err_n if err_n else float("nan")
         before = sum(r["before"] for r in filtered.values())
         consistency["kept_fraction"] = sum(r["after"] for r in filtered.values()) / before if before else 0.0
+        after = sum(r["after"] for r in filtered.values())
+        consistency["filled_fraction"] = sum(r.get("filled", 0) for r in filtered.values()) / after if after else 0.0
     stats = {}
     for v in model.views:
         r = filtered.get(v.name)
