@@ -162,7 +162,8 @@ def test_stereo_pair_fill_adds_correct_depth_without_more_wrong_depth(tmp_path_f
         rep = run_mvs(ds, out, Cfg(fill_gaps="on" if fill else "off", n_sources=1, pm_levels=2))
         assert rep.views == 2
         d = np.load(out / f"{a.name}.npy")
-        scores[fill] = disparity_scores(np.where(d > 0, fxb / np.maximum(d, 1e-12), np.nan), fxb / np.maximum(gt[0], 1e-12), cov)
+        disp = np.where(d > 0, fxb / np.maximum(d, 1e-12), np.nan)
+        scores[fill] = disparity_scores(disp, fxb / np.maximum(gt[0], 1e-12), cov)
     before, after = scores[False], scores[True]
     assert after["within"] > before["within"] + 0.003, (before, after)
     assert after["bad"] <= before["bad"] + 0.001, (before, after)

@@ -170,8 +170,8 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     """Fill the small holes of ``r`` (its depth after the geometric filter; its normals PatchMatch's) with
     neighbours' planes that at least ``need`` of ``sources`` confirm (``consistency_count`` with ``cfg``, the
     filter's settings) and the images accept (``photometric_error`` of ``grey``, the view's image, against
-    ``images``, name -> (grey image, view) of its matching sources). Changes ``r.depth``, ``r.normal`` and ``r.confidence`` in place; returns the filled
-    pixels (bool) and stats."""
+    ``images``, name -> (grey image, view) of its matching sources). Changes ``r.depth``, ``r.normal`` and
+    ``r.confidence`` in place; returns the filled pixels (bool) and stats."""
     d = r.depth
     holes = fillable_holes(d, mask, cfg.fill_max_gap)
     stats = {"hole_pixels": int(holes.sum()), "filled": 0}

@@ -384,7 +384,7 @@ class MVSResult(Result):
     sparse_points: int
     triangulated: bool  # sparse points triangulated from SIFT matches with the given cameras
     triangulation_seconds: float
-    consistency: dict  # the geometric consistency filter's statistics (kept_fraction counts the filled gaps, filled_fraction their share)
+    consistency: dict  # the geometric filter's statistics (kept_fraction includes the filled gaps: filled_fraction)
     seconds_per_view: float
     cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
     cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
