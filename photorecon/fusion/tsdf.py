@@ -225,8 +225,15 @@ def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc:
     """TSDF integration with a per-pixel weight (the confidence map), on the grid's own voxel storage: Open3D's
     ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF
     (and of the colour, 0..255, mid-grey where the frame has none)."""
+    import open3d.core as o3c
+
     hm = vbg.hashmap()
-    hm.activate(block_coords)
+    _, found = hm.find(block_coords)
+    fresh = ~found.numpy().astype(bool)
+    if fresh.any():
+        # only the blocks not in the grid yet: the hash map counts every key it is given against its capacity
+        # and, when they exceed it, doubles its storage (a copy of every block: seconds, and twice the memory)
+        hm.activate(o3c.Tensor(np.ascontiguousarray(block_coords.numpy()[fresh])))
     buf, _ = hm.find(block_coords)  # after activate: the storage may have been reallocated
     T = np.ascontiguousarray(f.view.cam_from_world, np.float64)
     intr = f.view.intrinsics
