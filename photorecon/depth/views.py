@@ -143,6 +143,7 @@ COARSE_MAX_COST = 0.5  # a coarse pixel is a surface sample when its matching co
 COARSE_SAMPLES_PER_VIEW = 1000  # about this many samples per view's coarse depth map, on a regular grid
 COARSE_DEPTH_TOL_PX = 3.0  # a sample is visible in a view whose coarse depth there is within this many pixel footprints
 COARSE_MAX_VIEW_ANGLE_DEG = 65.0  # ... and whose ray makes at most this angle with the sample's normal
+COARSE_COVER_FRACTION = 0.98  # the cover stops when this fraction of the samples have all the views they need
 
 
 def _coarse_samples(lv, depth: np.ndarray, normal: np.ndarray, cost: np.ndarray):
@@ -175,8 +176,11 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
     there agrees within ``COARSE_DEPTH_TOL_PX`` pixel footprints (not hidden, not in front of another surface),
     its ray makes at most ``COARSE_MAX_VIEW_ANGLE_DEG`` with the sample's normal, and its pixel footprint is
     within ``RESOLUTION_RATIO`` of the finest view's; then the greedy cover of ``choose_depth_views`` (each
-    sample by ``cfg.depth_view_coverage`` chosen views). A sample that only its own view sees well needs no
-    cover (a coarse mismatch). Views without a coarse map are kept (the depth stage judges them)."""
+    sample by ``cfg.depth_view_coverage`` chosen views) until ``COARSE_COVER_FRACTION`` of the samples are
+    covered, as CMVS's coverage ratio: the last few samples, seen well by two or three views at the edge of
+    their angle or resolution, would each ask for a view of their own. A sample that no other view's coarse
+    depth confirms needs no cover (a coarse mismatch). Views without a coarse map are kept (the depth stage
+    judges them)."""
     names = [v.name for v in views]
     pts, nrm, spacing = [], [], []
     for name in names:
@@ -195,6 +199,7 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
     first = np.sort(first)
     P, N = P[first], N[first]
     vi, pi, u, foot = [], [], [], []
+    confirmed = np.zeros(len(P), np.int64)  # views whose coarse depth agrees with the sample (its own included)
     cos_max = np.cos(np.radians(COARSE_MAX_VIEW_ANGLE_DEG))
     for k, v in enumerate(views):
         if v.name not in maps:
@@ -211,8 +216,10 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
         idx, uu, vv = front[inside], uu[inside], vv[inside]
         d = D[vv, uu]
         zf = z[idx]
-        agree = (d > 0) & (np.abs(d - zf) <= COARSE_DEPTH_TOL_PX * zf / (0.5 * (intr.fx + intr.fy)))
-        idx, zf = idx[agree], zf[agree]
+        tol = COARSE_DEPTH_TOL_PX * zf / (0.5 * (intr.fx + intr.fy))
+        confirmed += np.bincount(idx[(d > 0) & (np.abs(d - zf) <= tol)], minlength=len(P))
+        seen = (d <= 0) | (zf <= d + tol)  # not behind the surface the view's own coarse depth shows there
+        idx, zf = idx[seen], zf[seen]
         ray = v.center - P[idx]
         ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-30)
         good = np.einsum("ij,ij->i", ray, N[idx]) >= cos_max
@@ -222,13 +229,16 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
         u.append(ray[good])
         foot.append(zf[good] / (0.5 * (v.intrinsics.fx + v.intrinsics.fy)))
     vi, pi, u, foot = (np.concatenate(a) for a in (vi, pi, u, foot))
+    real = confirmed[pi] >= 2  # a sample no other view's coarse depth confirms is a mismatch: nothing to cover
+    vi, pi, u, foot = vi[real], pi[real], u[real], foot[real]
     n_pts, n_views = len(P), len(views)
     finest = np.full(n_pts, np.inf)
     np.minimum.at(finest, pi, foot)
     good = foot <= RESOLUTION_RATIO * finest[pi]
     vi, pi, u, w = vi[good], pi[good], u[good], (finest[pi] / foot)[good]
     need_k = max(1, int(cfg.depth_view_coverage))
-    taken, n_counted, need = _greedy_cover(vi, pi, u, w, n_pts, n_views, need_k, cfg.min_angle_deg)
+    taken, n_counted, need = _greedy_cover(vi, pi, u, w, n_pts, n_views, need_k, cfg.min_angle_deg,
+                                           COARSE_COVER_FRACTION)
     if taken.sum() < 2:
         return ViewChoice(names, n_views, "no coarse surface seen well by two views")
     keep = taken | np.array([n not in maps for n in names])
