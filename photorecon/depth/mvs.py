@@ -56,7 +56,7 @@ from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_c
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
 from .sweep import plane_sweep
 from ..fields import check_config, expect_config
-from .views import choose_depth_views
+from .views import ViewChoice, choose_depth_views, coarse_depth_views
 
 log = logging.getLogger("photorecon")
 
@@ -394,6 +394,71 @@ class MVSResult(Result):
     depth_views: dict  # chosen, of, reason, uncovered_points (--depth-views)
 
 
+def _depth_plan(model, cfg: MVSConfig, no_points: bool, skipped: dict) -> dict[str, tuple]:
+    """Per view of ``model`` that can get a depth map: (working-resolution view, source names, depth range,
+    seed points); the others go to ``skipped`` with the reason (logged)."""
+    near, far = DEPTH_RANGE_FACTORS[cfg.method]
+    near = near if cfg.depth_near is None else cfg.depth_near
+    far = far if cfg.depth_far is None else cfg.depth_far
+    def skip(name: str, reason: str) -> None:
+        if name not in skipped:  # said once (a second plan, of the chosen views, meets the same view again)
+            skipped[name] = reason
+            log.warning("mvs: view %s skipped: %s", name, reason)
+
+    plan: list[tuple[View, list[View], tuple[float, float]]] = []
+    for v in model.views:
+        rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v, near, far)
+        if rng is None:
+            skip(v.name, "no sparse points (or a degenerate depth range) in this view")
+            continue
+        srcs = select_sources(model, v, cfg)
+        if not srcs:
+            skip(v.name, "no source view with enough shared points and baseline")
+            continue
+        plan.append((v, srcs, rng))
+    planned = {v.name for v, _, _ in plan}
+    views: dict[str, tuple] = {}
+    for v, srcs, rng in plan:  # PatchMatch's geometric term reads the sources' own depth maps
+        srcs = [s for s in srcs if s.name in planned]
+        if srcs:
+            views[v.name] = (_working_view(v, cfg.max_size), [s.name for s in srcs], rng,
+                             model.points_seen_by(v.name) if cfg.method == "patchmatch" else np.zeros((0, 3)))
+        else:
+            skip(v.name, "every source view of it was skipped")
+    if not views:
+        raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    return views
+
+
+def _log_choice(choice, cfg: MVSConfig) -> list[str]:
+    if len(choice.chosen) < choice.total:
+        what = "the coarse depth maps' surface" if choice.surface_samples is not None else "every sparse point"
+        log.info("mvs: depth maps for %d of %d views (--depth-views %s: %s seen well by %d of them)",
+                 len(choice.chosen), choice.total, cfg.depth_views, what, cfg.depth_view_coverage)
+    return choice.chosen
+
+
+def _pm_rounds(cfg: MVSConfig) -> list:
+    from .patchmatch import pm_rounds
+
+    return pm_rounds(cfg)
+
+
+def _coarse_choice(ctx: _MVSContext, ex) -> tuple[dict, "ViewChoice"]:
+    """``--depth-views coarse``: PatchMatch's first (coarsest) round for every planned view, then the views
+    whose full depth maps cover that surface (``views.coarse_depth_views``). Returns the round's task results
+    and the choice; the round's maps stay in the work folder, where the chosen views' next round reads them."""
+    from .patchmatch import level_view
+
+    names = list(ctx.plan)
+    results = ex.run(_mvs_task, [Task(f"pm0:{n}", ("pm", n, 0)) for n in names], ctx,
+                     desc=f"mvs coarse depth ({len(names)} views)", unit="task")
+    level = _pm_rounds(ctx.cfg)[0][0]
+    maps = {n: (level_view(ctx.plan[n][0], level), *(_load(ctx.work / "r0" / f"{n}.{what}.npy")
+                                                     for what in ("depth", "normal", "cost"))) for n in names}
+    return results, coarse_depth_views([ctx.plan[n][0] for n in names], maps, ctx.cfg)
+
+
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
             work_dir: str | Path | None = None) -> MVSResult:
     """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
@@ -423,46 +488,26 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     no_points = len(model.points) == 0
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
-    plan: list[tuple[View, list[View], tuple[float, float]]] = []
-    choice = choose_depth_views(model, cfg)
-    if len(choice.chosen) < len(model.views):
-        log.info("mvs: depth maps for %d of %d views (--depth-views auto: each sparse point seen well by %d of "
-                 "them)", len(choice.chosen), len(model.views), cfg.depth_view_coverage)
-    model = _restricted(model, choice.chosen)
-    near, far = DEPTH_RANGE_FACTORS[cfg.method]
-    near = near if cfg.depth_near is None else cfg.depth_near
-    far = far if cfg.depth_far is None else cfg.depth_far
-    for v in model.views:
-        rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v, near, far)
-        if rng is None:
-            skipped[v.name] = "no sparse points (or a degenerate depth range) in this view"
-            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-            continue
-        srcs = select_sources(model, v, cfg)
-        if not srcs:
-            skipped[v.name] = "no source view with enough shared points and baseline"
-            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-            continue
-        plan.append((v, srcs, rng))
-    planned = {v.name for v, _, _ in plan}
-    views: dict[str, tuple] = {}
-    for v, srcs, rng in plan:  # PatchMatch's geometric term reads the sources' own depth maps
-        srcs = [s for s in srcs if s.name in planned]
-        if srcs:
-            views[v.name] = (_working_view(v, cfg.max_size), [s.name for s in srcs], rng,
-                             model.points_seen_by(v.name) if cfg.method == "patchmatch" else np.zeros((0, 3)))
-        else:
-            skipped[v.name] = "every source view of it was skipped"
-            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-    if not views:
-        raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    # --depth-views coarse: every view's coarsest PatchMatch round first, the views chosen from that surface
+    coarse = cfg.depth_views == "coarse" and cfg.method == "patchmatch" and len(_pm_rounds(cfg)) > 1
+    choice = None if coarse else choose_depth_views(model, cfg)
+    if choice is not None:
+        model = _restricted(model, _log_choice(choice, cfg))
+    views = _depth_plan(model, cfg, no_points, skipped)
     cfg = _pair_config(cfg, views)
     work = Path(work_dir) if work_dir else out / ".mvs_work"
     ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out,
                       _filter_plan(model, views, cfg))
+    coarse_results: dict = {}
+    if coarse:
+        coarse_results, choice = _coarse_choice(ctx, ex)
+        model = _restricted(model, _log_choice(choice, cfg))
+        views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
+        ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg))
     t_graph = time.perf_counter()
     # the bar counts tasks (each view's PatchMatch rounds, then its filter), not views
     results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method}, {len(views)} views)", unit="task")
+    results.update(coarse_results)  # the coarse round of every view (the chosen ones' found it done)
     t_graph = time.perf_counter() - t_graph
     _GREY_CACHE.clear()
     _MASK_CACHE.clear()
