@@ -155,7 +155,7 @@ def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, format
     ``refine``: what the refinement did)."""
     from .fusion import frames_hold_bytes, fuse_to_files, load_frames
 
-    frames = load_frames(ds, fusion_cfg, views, frames_hold_bytes(fusion_cfg))
+    frames = load_frames(ds, fusion_cfg, views, frames_hold_bytes(fusion_cfg), work_dir)  # streamed: kept there
     mesh, info = fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor,
                                ds, work_dir)
     if refine_cfg is not None and refine_cfg.refine:

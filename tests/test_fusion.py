@@ -767,3 +767,51 @@ def test_fusion_memory_budget_coarsens_the_voxel_and_keeps_the_surface(frames, g
     assert peak <= tiny.memory_gb * 2**30, peak
     m = mesh_metrics(small, gt, n_samples=30_000)
     assert m.chamfer <= 0.002 * m.diagonal and m.fscore >= 0.98, m
+
+
+def test_streamed_frames_are_prepared_once_and_fuse_in_chunks_to_the_one_grid_mesh(blob_fusion, tmp_path, monkeypatch):
+    """Streamed frames with normals and confidence, fused in chunks: each depth map is read and prepared once
+    (kept on disk in the given folder, integrated from there by every chunk it reaches), the mesh is face for
+    face the one of the frames held in memory in one grid, and the frames' files go with the store."""
+    import shutil
+
+    from photorecon.fusion import FrameStore, frames as frames_mod
+
+    root = tmp_path / "blob"
+    shutil.copytree(blob_fusion, root)
+    ds = Dataset.open(root)
+    views = ds.views[::2]
+    for v in views:  # PatchMatch's outputs: normals and confidence next to the depth map
+        f = _with_normals_and_confidence(frames_mod.load_frame(ds, v, FusionConfig()))
+        np.save(root / "depth" / f"{v.name}.normal.npy", f.normal)
+        np.save(root / "depth" / f"{v.name}.conf.npy", f.confidence)
+    held = load_frames(ds, FusionConfig(), views)
+    one = fuse(held, FusionConfig(grid_budget_gb=0), ds.model.points)
+
+    prepared = Counter()
+    load_frame = frames_mod.load_frame
+
+    def counting(dataset, v, cfg, full=True):
+        prepared[v.name] += 1
+        return load_frame(dataset, v, cfg, full)
+
+    monkeypatch.setattr(frames_mod, "load_frame", counting)
+    cfg = FusionConfig(grid_budget_gb=0.03)
+    store = load_frames(ds, cfg, views, hold_bytes=1, folder=tmp_path / "work")
+    chunked = fuse(store, cfg, ds.model.points)
+    assert isinstance(store, FrameStore) and chunked.metadata["chunks"] >= 4
+    assert prepared == Counter({v.name: 1 for v in views})
+    _, vid = np.unique(np.concatenate([one.vertices, chunked.vertices]).round(6), axis=0, return_inverse=True)
+    vid = vid.ravel()
+    tris_one = np.unique(np.sort(vid[one.faces], axis=1), axis=0)
+    tris_chunked = np.unique(np.sort(vid[len(one.vertices) + chunked.faces], axis=1), axis=0)
+    assert len(tris_chunked) == len(chunked.faces) == len(one.faces) and (tris_chunked == tris_one).all()
+    colour = np.zeros((vid.max() + 1, 2, 4))  # per position: the two meshes' vertex colours
+    colour[vid[:len(one.vertices)], 0] = np.asarray(one.visual.vertex_colors)
+    colour[vid[len(one.vertices):], 1] = np.asarray(chunked.visual.vertex_colors)
+    used = np.unique(vid[one.faces])
+    assert np.abs(colour[used, 0] - colour[used, 1]).max() <= 1
+    folder = store.folder
+    assert folder.parent == tmp_path / "work" and len(list(folder.glob("*.depth.npy"))) == len(views)
+    del store
+    assert not folder.exists()

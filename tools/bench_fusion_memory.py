@@ -25,6 +25,7 @@ import ast
 import json
 import os
 import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -78,7 +79,7 @@ class Sampler:
 
 def repeated_dataset(result: Path, dataset: Path | None, n: int, tmp: Path):
     """A ``Dataset`` whose views are the result's views cycled to ``n`` (repeats renamed NAME~k), their depth
-    maps (and confidence, normal maps) linked into ``tmp``."""
+    maps (and confidence, normal maps) hard-linked (else copied) into ``tmp``."""
     from photorecon.io.colmap_text import SparseModel
     from photorecon.io.dataset import Dataset
 
@@ -92,8 +93,11 @@ def repeated_dataset(result: Path, dataset: Path | None, n: int, tmp: Path):
         img = base.image_path(v)
         for suffix in (".npy", ".conf.npy", ".normal.npy"):
             src = result / "depth" / f"{v.name}{suffix}"
-            if src.is_file():
-                (tmp / f"{name}{suffix}").symlink_to(src.resolve())
+            if src.is_file():  # a hard link (a symbolic one leading out of the folder is refused), else a copy
+                try:
+                    os.link(src.resolve(), tmp / f"{name}{suffix}")
+                except OSError:
+                    shutil.copyfile(src, tmp / f"{name}{suffix}")
         out.append(replace(v, name=name, image_path=str(img)))
     model = SparseModel(out, base.model.points, base.model.colors, base.model.point_ids)
     return Dataset(base.root, model, tmp), views
@@ -157,8 +161,6 @@ def child(args) -> dict:
             preview_stage(mesh, ds, layout)
         r2 = resource.getrusage(resource.RUSAGE_SELF)
         if args.keep_mesh:  # the fused mesh, to compare two versions' outputs
-            import shutil
-
             Path(args.keep_mesh).mkdir(parents=True, exist_ok=True)
             shutil.copyfile(layout.mesh("ply"), Path(args.keep_mesh) / f"mesh_{args.child}.ply")
         depth = np.load(Path(args.result) / "depth" / f"{base_views[0].name}.npy", mmap_mode="r")

@@ -103,6 +103,7 @@ def accuracy(tmp: Path) -> list[dict]:
         synthesize(SynthConfig(scene=scene, views=30, width=512, height=384, points=3000), root, overwrite=True)
         ds = Dataset.open(root)
         for label, cfg in (("patchmatch", MVSConfig()), ("patchmatch + planar prior", MVSConfig(planar_prior=True)),
+                           ("patchmatch + hole fill", MVSConfig(fill_gaps="on")),
                            ("patchmatch, 1 consistent view", MVSConfig(min_consistent=1)),
                            ("sweep", MVSConfig(method="sweep", min_confidence=0.5, min_consistent=1))):
             r = run(ds, root, tmp / f"{scene}_out_{len(rows)}", cfg)

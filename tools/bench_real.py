@@ -225,7 +225,11 @@ def main() -> int:
     fusion = {}
     for item in args.set:
         name, _, value = item.partition("=")
-        (fusion if name.strip() in fusion_fields else over)[name.strip()] = ast.literal_eval(value.strip())
+        try:
+            parsed = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):  # a choice, e.g. fill_gaps=on
+            parsed = value.strip()
+        (fusion if name.strip() in fusion_fields else over)[name.strip()] = parsed
     cfg = MVSConfig(**over)
     warm = warm_up()
     print(f"numba warm-up (compile or cache load): {warm:.1f} s", flush=True)

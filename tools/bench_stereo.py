@@ -5,7 +5,7 @@ transforms.json``: no sparse points given, they are triangulated), against the t
 pairs against OpenCV's StereoSGBM.
 
     python tools/bench_stereo.py [--scenes knot,room,blob] [--width 640 --height 480] [--baseline 0.3]
-                                 [--rigs stereo,pair] [--json out.json] [--keep DIR]
+                                 [--rigs stereo,pair] [--json out.json] [--keep DIR] [--set NAME=VALUE]
 
 Per pair and view, on the pixels both views see (from the true depth maps):
 - ``within1%``: the fraction whose depth is within 1% of the truth (no depth = wrong), ``coverage`` the fraction
@@ -20,6 +20,8 @@ Also the faces of the fused mesh (a mesh must come out) and the seconds of the r
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import json
 import tempfile
 import time
@@ -54,6 +56,7 @@ def run_pair(scene: str, rig: str, args, tmp: Path) -> dict:
                            elevation=args.elevation, baseline=args.baseline, fov=args.fov), data, overwrite=True)
     out = tmp / f"{scene}_{rig}_rec"
     cfgs = StageConfigs()
+    cfgs.mvs = dataclasses.replace(cfgs.mvs, **args.mvs_over)
     cfgs.run.poses = str(data / "transforms.json")  # cameras only: the sparse points are triangulated
     t0 = time.perf_counter()
     rep = reconstruct(data / "images", out, cfgs, overwrite=True)
@@ -86,6 +89,14 @@ def run_pair(scene: str, rig: str, args, tmp: Path) -> dict:
     return row
 
 
+def _value(text: str):
+    """A --set value: a Python literal (1, 0.5, True), else the text itself (a choice such as off)."""
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default="knot,room,blob")
@@ -98,7 +109,10 @@ def main() -> None:
     ap.add_argument("--fov", type=float, default=50.0, help="horizontal field of view, degrees")
     ap.add_argument("--json")
     ap.add_argument("--keep", help="keep the datasets and reconstructions in this folder")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="override an MVSConfig setting, e.g. --set fill_gaps=off (repeatable)")
     args = ap.parse_args()
+    args.mvs_over = {k.strip(): _value(v.strip()) for k, _, v in (s.partition("=") for s in args.set)}
     progress.set_enabled(False)
     rows = []
     with tempfile.TemporaryDirectory() as t:

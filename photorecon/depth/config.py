@@ -53,14 +53,16 @@ class MVSConfig:
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees", "range": (0.0, 90.0)})
     geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
     geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (per pixel of reprojection error)", "range": (0.0, 100.0)})
+    fill_gaps: Literal["auto", "on", "off"] = field(default="auto", metadata={"help": "geometric filter: fill small gaps between kept depths with a neighbouring pixel's plane where the other views' depth maps confirm it as they confirm any depth and the images agree; auto = on for a view checked against one other view (a stereo pair)"})
+    fill_max_gap: int = field(default=400, metadata={"help": "--fill-gaps: largest gap filled, pixels at the working resolution", "range": (1, 1 << 24)})
     planar_prior: bool = field(default=False, metadata={"help": "patchmatch: planar prior (ACMP): planes through confident pixels tried where the depth is not confident"})
     triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed (view selection, depth ranges)"})
     pm_seed: int = field(default=0, metadata={"help": "patchmatch: random seed (results are deterministic for a seed)", "range": (0, 2**31 - 1)})
     n_depths: int = field(default=128, metadata={"help": "sweep: depth hypotheses (planes, uniform in inverse depth)", "range": (2, 16384)})
     window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)", "range": (1, 63), "odd": True})
     best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel", "range": (1, 256)})
-    depth_views: Literal["auto", "all"] = field(default="auto", metadata={"help": "views that get a depth map: auto = enough views to see every sparse point well from --depth-view-coverage directions (a redundant capture computes fewer depth maps; a small one keeps all); all = every view"})
-    depth_view_coverage: int = field(default=3, metadata={"help": "--depth-views auto: chosen views that must see each sparse point (at a good angle and resolution)", "range": (1, 64)})
+    depth_views: Literal["auto", "coarse", "all"] = field(default="auto", metadata={"help": "views that get a depth map: auto = enough views to see every sparse point well from --depth-view-coverage directions (a redundant capture computes fewer depth maps; a small one keeps all); coarse = PatchMatch's coarsest round for every view, then enough views to see that dense surface well (for captures whose sparse tracks are short); all = every view"})
+    depth_view_coverage: int = field(default=3, metadata={"help": "--depth-views auto/coarse: chosen views that must see each sparse point (coarse: each coarse surface sample) at a good angle and resolution", "range": (1, 64)})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)

@@ -22,6 +22,9 @@ For each reference view:
    apart (``consistency_count``; surfaces seen at grazing angles). A depth that k views confirm gets at least
    confidence 1 - 1/k (``consistency_confidence``), its weight in TSDF fusion. A view checked against one other
    view (a stereo pair) gets a left-right check instead: within ``pair_reproj_px`` pixels, no plane test.
+5. **Gap filling** (``fill_gaps``, PatchMatch; auto: on for a stereo pair): the small gaps the filter leaves
+   (up to ``fill_max_gap`` pixels) take a confirmed neighbour's plane where the same consistency test and the
+   images accept it (``fill.fill_holes``).
 
 Outputs, in the synth layout: ``depth/NAME.npy`` (float32 z-depth, 0 = none), ``depth/NAME.conf.npy``
 (float32 confidence in [0, 1]) and ``depth/NAME.png`` (preview).
@@ -47,12 +50,13 @@ from ..io.images import write_depth
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor, Task
 from .config import MVS_PRESETS, PAIR_SETTINGS, DepthResult, MVSConfig  # noqa: F401 (re-exported)
+from .fill import fill_holes, fill_on
 from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_count_pinhole, _filter_config,
                      _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
 from .sweep import plane_sweep
 from ..fields import check_config, expect_config
-from .views import choose_depth_views
+from .views import ViewChoice, choose_depth_views, coarse_depth_views
 
 log = logging.getLogger("photorecon")
 
@@ -192,6 +196,14 @@ def _level_mask(ctx: _MVSContext, name: str, lv: View) -> np.ndarray | None:
     return cv2.resize(m.astype(np.float32), lv.intrinsics.size, interpolation=cv2.INTER_AREA) > 0
 
 
+def _mask_at(ctx: _MVSContext, name: str, shape: tuple[int, int]) -> np.ndarray | None:
+    """View ``name``'s mask (True = foreground) at ``shape`` (h, w), or None without one."""
+    mask = _level_mask(ctx, name, _plan_view(ctx, name))
+    if mask is not None and mask.shape != tuple(shape):
+        mask = cv2.resize(mask.astype(np.uint8), tuple(shape)[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    return mask
+
+
 def _level_image(ctx: _MVSContext, name: str, lv: View) -> np.ndarray:
     g = _working_grey(ctx, name)
     if g.shape != (lv.intrinsics.height, lv.intrinsics.width):
@@ -220,10 +232,7 @@ def _finish_depth(ctx: _MVSContext, name: str, depth: np.ndarray, conf: np.ndarr
     """A view's unfiltered result: low-confidence, non-finite and masked pixels to 0; to ``work/raw`` (depth last:
     the file that says the view is done)."""
     cfg = ctx.cfg
-    mask = _level_mask(ctx, name, _plan_view(ctx, name))  # masks/NAME.png or the image's alpha: no depth there
-    h, w = depth.shape
-    if mask is not None and mask.shape != (h, w):
-        mask = cv2.resize(mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    mask = _mask_at(ctx, name, depth.shape)  # masks/NAME.png or the image's alpha: no depth there
     min_conf = cfg.min_confidence
     if normal is not None and not cfg.planar_prior and (cfg.min_texture > 0 or cfg.texture_rel > 0):
         from .planar import relative_texture, textureless  # PatchMatch: no evidence where the window is flat
@@ -296,7 +305,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
     if kind == "filter":
         res = _raw_result(ctx, name, normal=True)
         before = int((res.depth > 0).sum())
-        err_sum, err_n = 0.0, 0
+        err_sum, err_n, filled = 0.0, 0, 0
         if cfg.min_consistent > 0:
             checked = dataclasses.replace(res, sources=_filter_sources(ctx, name))
             sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0, confidence=False) for s in checked.sources}
@@ -304,8 +313,14 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
             res.depth[cnt < min(cfg.min_consistent, len(sources))] = 0  # no more confirming views than there are
             if cfg.consistency_confidence:  # k views agree: confidence at least 1 - 1/k
                 res.confidence = np.maximum(res.confidence, 1.0 - 1.0 / np.maximum(cnt, 1)).astype(np.float32)
+            if res.normal is not None and fill_on(cfg, len(sources)):  # PatchMatch: gaps filled with confirmed planes
+                images = {s: (_working_grey(ctx, s), ctx.plan[s][0]) for s in ctx.plan[name][1]}
+                _, fill_stats = fill_holes(dataclasses.replace(res, sources=checked.sources), sources,
+                                           _filter_config(cfg, len(sources)), min(cfg.min_consistent, len(sources)),
+                                           _working_grey(ctx, name), images, _mask_at(ctx, name, res.depth.shape))
+                filled = fill_stats["filled"]
         d = res.depth
-        info = {"before": before, "after": int((d > 0).sum()), "err_sum": err_sum, "err_n": err_n,
+        info = {"before": before, "after": int((d > 0).sum()), "filled": filled, "err_sum": err_sum, "err_n": err_n,
                 "seconds": time.perf_counter() - t0}
         if not np.count_nonzero(d):
             return {**info, "written": False}
@@ -369,7 +384,7 @@ class MVSResult(Result):
     sparse_points: int
     triangulated: bool  # sparse points triangulated from SIFT matches with the given cameras
     triangulation_seconds: float
-    consistency: dict  # the geometric consistency filter's statistics
+    consistency: dict  # the geometric filter's statistics (kept_fraction includes the filled gaps: filled_fraction)
     seconds_per_view: float
     cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
     cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
@@ -377,6 +392,71 @@ class MVSResult(Result):
     reused_tasks: int  # tasks whose output an interrupted run had left
     task_seconds: dict  # task key -> seconds
     depth_views: dict  # chosen, of, reason, uncovered_points (--depth-views)
+
+
+def _depth_plan(model, cfg: MVSConfig, no_points: bool, skipped: dict) -> dict[str, tuple]:
+    """Per view of ``model`` that can get a depth map: (working-resolution view, source names, depth range,
+    seed points); the others go to ``skipped`` with the reason (logged)."""
+    near, far = DEPTH_RANGE_FACTORS[cfg.method]
+    near = near if cfg.depth_near is None else cfg.depth_near
+    far = far if cfg.depth_far is None else cfg.depth_far
+    def skip(name: str, reason: str) -> None:
+        if name not in skipped:  # said once (a second plan, of the chosen views, meets the same view again)
+            skipped[name] = reason
+            log.warning("mvs: view %s skipped: %s", name, reason)
+
+    plan: list[tuple[View, list[View], tuple[float, float]]] = []
+    for v in model.views:
+        rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v, near, far)
+        if rng is None:
+            skip(v.name, "no sparse points (or a degenerate depth range) in this view")
+            continue
+        srcs = select_sources(model, v, cfg)
+        if not srcs:
+            skip(v.name, "no source view with enough shared points and baseline")
+            continue
+        plan.append((v, srcs, rng))
+    planned = {v.name for v, _, _ in plan}
+    views: dict[str, tuple] = {}
+    for v, srcs, rng in plan:  # PatchMatch's geometric term reads the sources' own depth maps
+        srcs = [s for s in srcs if s.name in planned]
+        if srcs:
+            views[v.name] = (_working_view(v, cfg.max_size), [s.name for s in srcs], rng,
+                             model.points_seen_by(v.name) if cfg.method == "patchmatch" else np.zeros((0, 3)))
+        else:
+            skip(v.name, "every source view of it was skipped")
+    if not views:
+        raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    return views
+
+
+def _log_choice(choice, cfg: MVSConfig) -> list[str]:
+    if len(choice.chosen) < choice.total:
+        what = "the coarse depth maps' surface" if choice.surface_samples is not None else "every sparse point"
+        log.info("mvs: depth maps for %d of %d views (--depth-views %s: %s seen well by %d of them)",
+                 len(choice.chosen), choice.total, cfg.depth_views, what, cfg.depth_view_coverage)
+    return choice.chosen
+
+
+def _pm_rounds(cfg: MVSConfig) -> list:
+    from .patchmatch import pm_rounds
+
+    return pm_rounds(cfg)
+
+
+def _coarse_choice(ctx: _MVSContext, ex) -> tuple[dict, "ViewChoice"]:
+    """``--depth-views coarse``: PatchMatch's first (coarsest) round for every planned view, then the views
+    whose full depth maps cover that surface (``views.coarse_depth_views``). Returns the round's task results
+    and the choice; the round's maps stay in the work folder, where the chosen views' next round reads them."""
+    from .patchmatch import level_view
+
+    names = list(ctx.plan)
+    results = ex.run(_mvs_task, [Task(f"pm0:{n}", ("pm", n, 0)) for n in names], ctx,
+                     desc=f"mvs coarse depth ({len(names)} views)", unit="task")
+    level = _pm_rounds(ctx.cfg)[0][0]
+    maps = {n: (level_view(ctx.plan[n][0], level), *(_load(ctx.work / "r0" / f"{n}.{what}.npy")
+                                                     for what in ("depth", "normal", "cost"))) for n in names}
+    return results, coarse_depth_views([ctx.plan[n][0] for n in names], maps, ctx.cfg)
 
 
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
@@ -408,46 +488,26 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     no_points = len(model.points) == 0
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
-    plan: list[tuple[View, list[View], tuple[float, float]]] = []
-    choice = choose_depth_views(model, cfg)
-    if len(choice.chosen) < len(model.views):
-        log.info("mvs: depth maps for %d of %d views (--depth-views auto: each sparse point seen well by %d of "
-                 "them)", len(choice.chosen), len(model.views), cfg.depth_view_coverage)
-    model = _restricted(model, choice.chosen)
-    near, far = DEPTH_RANGE_FACTORS[cfg.method]
-    near = near if cfg.depth_near is None else cfg.depth_near
-    far = far if cfg.depth_far is None else cfg.depth_far
-    for v in model.views:
-        rng = camera_depth_range(model.views, v) if no_points else depth_range(model, v, near, far)
-        if rng is None:
-            skipped[v.name] = "no sparse points (or a degenerate depth range) in this view"
-            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-            continue
-        srcs = select_sources(model, v, cfg)
-        if not srcs:
-            skipped[v.name] = "no source view with enough shared points and baseline"
-            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-            continue
-        plan.append((v, srcs, rng))
-    planned = {v.name for v, _, _ in plan}
-    views: dict[str, tuple] = {}
-    for v, srcs, rng in plan:  # PatchMatch's geometric term reads the sources' own depth maps
-        srcs = [s for s in srcs if s.name in planned]
-        if srcs:
-            views[v.name] = (_working_view(v, cfg.max_size), [s.name for s in srcs], rng,
-                             model.points_seen_by(v.name) if cfg.method == "patchmatch" else np.zeros((0, 3)))
-        else:
-            skipped[v.name] = "every source view of it was skipped"
-            log.warning("mvs: view %s skipped: %s", v.name, skipped[v.name])
-    if not views:
-        raise NoDepthError("mvs: no view yielded depth (" + "; ".join(f"{k}: {m}" for k, m in list(skipped.items())[:5]) + ")")
+    # --depth-views coarse: every view's coarsest PatchMatch round first, the views chosen from that surface
+    coarse = cfg.depth_views == "coarse" and cfg.method == "patchmatch" and len(_pm_rounds(cfg)) > 1
+    choice = None if coarse else choose_depth_views(model, cfg)
+    if choice is not None:
+        model = _restricted(model, _log_choice(choice, cfg))
+    views = _depth_plan(model, cfg, no_points, skipped)
     cfg = _pair_config(cfg, views)
     work = Path(work_dir) if work_dir else out / ".mvs_work"
     ctx = _MVSContext(dataset, cfg, views, work / _work_key(dataset, cfg, views), out,
                       _filter_plan(model, views, cfg))
+    coarse_results: dict = {}
+    if coarse:
+        coarse_results, choice = _coarse_choice(ctx, ex)
+        model = _restricted(model, _log_choice(choice, cfg))
+        views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
+        ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg))
     t_graph = time.perf_counter()
     # the bar counts tasks (each view's PatchMatch rounds, then its filter), not views
     results = ex.run(_mvs_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method}, {len(views)} views)", unit="task")
+    results.update(coarse_results)  # the coarse round of every view (the chosen ones' found it done)
     t_graph = time.perf_counter() - t_graph
     _GREY_CACHE.clear()
     _MASK_CACHE.clear()
@@ -462,6 +522,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         consistency["mean_reprojection_px"] = sum(r["err_sum"] for r in filtered.values()) / err_n if err_n else float("nan")
         before = sum(r["before"] for r in filtered.values())
         consistency["kept_fraction"] = sum(r["after"] for r in filtered.values()) / before if before else 0.0
+        after = sum(r["after"] for r in filtered.values())
+        consistency["filled_fraction"] = sum(r.get("filled", 0) for r in filtered.values()) / after if after else 0.0
     stats = {}
     for v in model.views:
         r = filtered.get(v.name)

@@ -31,12 +31,14 @@ class ViewChoice:
 
     chosen: list[str]
     total: int
-    reason: str  # "all requested", "no sparse points", "no point seen well by two views", "coverage"
+    reason: str  # "all requested", "no sparse points", "no point seen well by two views", "coverage", ...
     uncovered_points: int = 0  # points seen well by fewer chosen views than needed (0 when the cover is complete)
+    surface_samples: int | None = None  # --depth-views coarse: the coarse surface's samples that two views see well
 
     def to_dict(self) -> dict:
-        return {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
-                "uncovered_points": self.uncovered_points}
+        d = {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
+             "uncovered_points": self.uncovered_points}
+        return d if self.surface_samples is None else {**d, "surface_samples": self.surface_samples}
 
 
 def _observations(model, views, max_size: int):
@@ -70,6 +72,40 @@ def _observations(model, views, max_size: int):
     return np.concatenate(vi), np.concatenate(pi), np.concatenate(dirs), np.concatenate(foot)
 
 
+def _greedy_cover(vi: np.ndarray, pi: np.ndarray, u: np.ndarray, w: np.ndarray, n_pts: int, n_views: int,
+                  need_k: int, min_angle_deg: float, enough: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The greedy cover of ``n_pts`` surface samples by views, from the observations (view ``vi``, sample ``pi``,
+    unit direction sample -> camera ``u``, weight ``w``) of the views that see them well: one view at a time,
+    the one whose observations fill the most still-needed places (weighted), until each sample is seen by
+    ``need_k`` chosen views (by all that see it well, when fewer; none for a sample one view sees), a view
+    counting for a sample only when its ray is ``min_angle_deg`` from the rays already counted there; with
+    ``enough`` < 1, until that fraction of the samples that need views have them all. Returns (views taken
+    (bool per view), chosen views counted per sample, views needed per sample)."""
+    n_good = np.bincount(pi, minlength=n_pts)
+    need = np.where(n_good >= 2, np.minimum(need_k, n_good), 0)  # a point one view sees cannot be matched
+    cos_sep = np.cos(np.radians(max(min_angle_deg, 0.0)))
+    counted = np.zeros((n_pts, need_k, 3))  # the rays of the chosen views counted for each point
+    n_counted = np.zeros(n_pts, np.int64)
+    taken = np.zeros(n_views, bool)
+    n_need = max(1, int(np.count_nonzero(need)))
+    while np.count_nonzero((n_counted >= need) & (need > 0)) < enough * n_need:
+        fills = (n_counted[pi] < need[pi]) & ~taken[vi]
+        # a view counts for a point only when its ray is at least min_angle_deg from every ray counted there
+        e = np.flatnonzero(fills)
+        dots = np.einsum("ij,ikj->ik", u[e], counted[pi[e]])
+        fills[e] = ~np.any((dots > cos_sep) & (np.arange(need_k)[None] < n_counted[pi[e]][:, None]), axis=1)
+        gain = np.bincount(vi[fills], weights=w[fills], minlength=n_views)
+        best = int(np.argmax(gain))
+        if gain[best] <= 0:
+            break
+        sel = fills & (vi == best)
+        p = pi[sel]
+        counted[p, n_counted[p]] = u[sel]
+        n_counted[p] += 1
+        taken[best] = True
+    return taken, n_counted, need
+
+
 def choose_depth_views(model, cfg) -> ViewChoice:
     """The views to compute depth maps for (``cfg.depth_views``: ``"all"``, or ``"auto"``: the greedy
     coverage described in this module, ``cfg.depth_view_coverage`` views per sparse point). Views that see no
@@ -93,32 +129,119 @@ def choose_depth_views(model, cfg) -> ViewChoice:
     np.minimum.at(finest, pi[good], foot[good])
     good &= foot <= RESOLUTION_RATIO * finest[pi]
     vi, pi, u, w = vi[good], pi[good], u[good], (finest[pi] / foot)[good]
-    n_good = np.bincount(pi, minlength=n_pts)
-    need = np.where(n_good >= 2, np.minimum(need_k, n_good), 0)  # a point one view sees cannot be matched
-    cos_sep = np.cos(np.radians(max(cfg.min_angle_deg, 0.0)))
-    counted = np.zeros((n_pts, need_k, 3))  # the rays of the chosen views counted for each point
-    n_counted = np.zeros(n_pts, np.int64)
-    chosen: list[int] = []
-    taken = np.zeros(n_views, bool)
-    while True:
-        fills = (n_counted[pi] < need[pi]) & ~taken[vi]
-        # a view counts for a point only when its ray is at least min_angle_deg from every ray counted there
-        e = np.flatnonzero(fills)
-        dots = np.einsum("ij,ikj->ik", u[e], counted[pi[e]])
-        fills[e] = ~np.any((dots > cos_sep) & (np.arange(need_k)[None] < n_counted[pi[e]][:, None]), axis=1)
-        gain = np.bincount(vi[fills], weights=w[fills], minlength=n_views)
-        best = int(np.argmax(gain))
-        if gain[best] <= 0:
-            break
-        sel = fills & (vi == best)
-        p = pi[sel]
-        counted[p, n_counted[p]] = u[sel]
-        n_counted[p] += 1
-        taken[best] = True
-        chosen.append(best)
+    taken, n_counted, need = _greedy_cover(vi, pi, u, w, n_pts, n_views, need_k, cfg.min_angle_deg)
     if taken.sum() < 2:  # no point that two views see well: nothing to cover, the depth stage judges every view
         return ViewChoice(names, n_views, "no point seen well by two views")
     # views that observe no sparse point are not the cover's to drop (the depth stage skips them, saying why)
     keep = taken | ~observed
     uncovered = int(np.count_nonzero(n_counted < need))
     return ViewChoice([names[k] for k in range(n_views) if keep[k]], n_views, "coverage", uncovered)
+
+
+# --depth-views coarse: the surface from PatchMatch's coarsest round
+COARSE_MAX_COST = 0.5  # a coarse pixel is a surface sample when its matching cost (1 - NCC) is below this
+COARSE_SAMPLES_PER_VIEW = 1000  # about this many samples per view's coarse depth map, on a regular grid
+COARSE_DEPTH_TOL_PX = 3.0  # a sample is visible in a view whose coarse depth there is within this many pixel footprints
+COARSE_MAX_VIEW_ANGLE_DEG = 65.0  # ... and whose ray makes at most this angle with the sample's normal
+COARSE_COVER_FRACTION = 0.98  # the cover stops when this fraction of the samples have all the views they need
+
+
+def _coarse_samples(lv, depth: np.ndarray, normal: np.ndarray, cost: np.ndarray):
+    """World points and unit normals (towards the camera) of about ``COARSE_SAMPLES_PER_VIEW`` pixels of a coarse
+    depth map whose cost is below ``COARSE_MAX_COST``, and the spacing of those samples on the surface."""
+    ok = (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
+    n_ok = int(ok.sum())
+    if not n_ok:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.inf
+    step = max(1, int(np.sqrt(n_ok / COARSE_SAMPLES_PER_VIEW)))
+    grid = np.zeros_like(ok)
+    grid[::step, ::step] = True
+    rows, cols = np.nonzero(ok & grid)
+    z = depth[rows, cols].astype(np.float64)
+    ray = lv.intrinsics.pixel_rays(np.stack([cols, rows], 1).astype(np.float64))
+    n = normal[rows, cols].astype(np.float64)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n *= -np.sign(np.einsum("ij,ij->i", n, ray))[:, None]  # towards the camera
+    R, t = lv.cam_from_world[:3, :3], lv.cam_from_world[:3, 3]
+    spacing = step * float(np.median(z)) / (0.5 * (lv.intrinsics.fx + lv.intrinsics.fy))
+    return (ray * z[:, None] - t) @ R, n @ R, spacing
+
+
+def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
+    """The views to compute full depth maps for, chosen from every view's coarse depth map (``maps``: view name
+    -> (view at the coarse level, depth, camera-frame normal, matching cost); ``views``: the views at their
+    working resolution). The coarse maps are a dense sample of the surface: their pixels (cost below
+    ``COARSE_MAX_COST``, about ``COARSE_SAMPLES_PER_VIEW`` per view, one per cell of the samples' spacing)
+    are the points to cover. A view sees a sample well when the sample projects inside it, its own coarse depth
+    there agrees within ``COARSE_DEPTH_TOL_PX`` pixel footprints (not hidden, not in front of another surface),
+    its ray makes at most ``COARSE_MAX_VIEW_ANGLE_DEG`` with the sample's normal, and its pixel footprint is
+    within ``RESOLUTION_RATIO`` of the finest view's; then the greedy cover of ``choose_depth_views`` (each
+    sample by ``cfg.depth_view_coverage`` chosen views) until ``COARSE_COVER_FRACTION`` of the samples are
+    covered, as CMVS's coverage ratio: the last few samples, seen well by two or three views at the edge of
+    their angle or resolution, would each ask for a view of their own. A sample that no other view's coarse
+    depth confirms needs no cover (a coarse mismatch). Views without a coarse map are kept (the depth stage
+    judges them)."""
+    names = [v.name for v in views]
+    pts, nrm, spacing = [], [], []
+    for name in names:
+        if name in maps:
+            p, n, s = _coarse_samples(*maps[name])
+            pts.append(p)
+            nrm.append(n)
+            spacing.append(s)
+    P = np.concatenate(pts) if pts else np.zeros((0, 3))
+    if len(P) < 2:
+        return ViewChoice(names, len(names), "no coarse depth")
+    N = np.concatenate(nrm)
+    # one sample per cell of the samples' spacing: the surface sampled about evenly, whatever the views' overlap
+    cell = float(np.median([s for s in spacing if np.isfinite(s)]))
+    _, first = np.unique(np.floor(P / cell).astype(np.int64), axis=0, return_index=True)
+    first = np.sort(first)
+    P, N = P[first], N[first]
+    vi, pi, u, foot = [], [], [], []
+    confirmed = np.zeros(len(P), np.int64)  # views whose coarse depth agrees with the sample (its own included)
+    cos_max = np.cos(np.radians(COARSE_MAX_VIEW_ANGLE_DEG))
+    for k, v in enumerate(views):
+        if v.name not in maps:
+            continue
+        lv, D = maps[v.name][0], maps[v.name][1]
+        T = lv.cam_from_world
+        Pc = P @ T[:3, :3].T + T[:3, 3]
+        z = Pc[:, 2]
+        front = np.flatnonzero(z > 1e-12)
+        intr = lv.intrinsics
+        uu = np.floor(intr.fx * Pc[front, 0] / z[front] + intr.cx + 0.5).astype(np.int64)
+        vv = np.floor(intr.fy * Pc[front, 1] / z[front] + intr.cy + 0.5).astype(np.int64)
+        inside = (uu >= 0) & (vv >= 0) & (uu < intr.width) & (vv < intr.height)
+        idx, uu, vv = front[inside], uu[inside], vv[inside]
+        d = D[vv, uu]
+        zf = z[idx]
+        tol = COARSE_DEPTH_TOL_PX * zf / (0.5 * (intr.fx + intr.fy))
+        confirmed += np.bincount(idx[(d > 0) & (np.abs(d - zf) <= tol)], minlength=len(P))
+        seen = (d <= 0) | (zf <= d + tol)  # not behind the surface the view's own coarse depth shows there
+        idx, zf = idx[seen], zf[seen]
+        ray = v.center - P[idx]
+        ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-30)
+        good = np.einsum("ij,ij->i", ray, N[idx]) >= cos_max
+        idx = idx[good]
+        vi.append(np.full(len(idx), k, np.int64))
+        pi.append(idx)
+        u.append(ray[good])
+        foot.append(zf[good] / (0.5 * (v.intrinsics.fx + v.intrinsics.fy)))
+    vi, pi, u, foot = (np.concatenate(a) for a in (vi, pi, u, foot))
+    real = confirmed[pi] >= 2  # a sample no other view's coarse depth confirms is a mismatch: nothing to cover
+    vi, pi, u, foot = vi[real], pi[real], u[real], foot[real]
+    n_pts, n_views = len(P), len(views)
+    finest = np.full(n_pts, np.inf)
+    np.minimum.at(finest, pi, foot)
+    good = foot <= RESOLUTION_RATIO * finest[pi]
+    vi, pi, u, w = vi[good], pi[good], u[good], (finest[pi] / foot)[good]
+    need_k = max(1, int(cfg.depth_view_coverage))
+    taken, n_counted, need = _greedy_cover(vi, pi, u, w, n_pts, n_views, need_k, cfg.min_angle_deg,
+                                           COARSE_COVER_FRACTION)
+    if taken.sum() < 2:
+        return ViewChoice(names, n_views, "no coarse surface seen well by two views")
+    keep = taken | np.array([n not in maps for n in names])
+    uncovered = int(np.count_nonzero(n_counted < need))
+    return ViewChoice([names[k] for k in range(n_views) if keep[k]], n_views, "coarse depth coverage", uncovered,
+                      surface_samples=int(np.count_nonzero(need)))

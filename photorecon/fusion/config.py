@@ -37,7 +37,7 @@ class FusionConfig:
     max_stretch: float = field(default=8.0, metadata={"help": "grid: reject triangles whose edge exceeds this many pixel footprints", "range": (0.0, 10_000.0), "exclusive_min": True})
     chunk_voxels: int | None = field(default=None, metadata={"help": "TSDF in cubic chunks of this many voxels a side, one task each (default: one volume; 256 with --cluster)", "range": (16, 65536)})
     memory_limit_gb: float | None = field(default=None, metadata={"help": "refuse a voxel grid above this size, GB (default: 60%% of free memory)", "range": (0.0, 1e6), "exclusive_min": True})
-    memory_gb: float = field(default=2.0, metadata={"flag": "--fusion-memory", "metavar": "GB", "help": "TSDF: memory budget of the fusion, GB: depth frames are read one at a time when they would hold more than a quarter of it, the grid is fused in chunks of at most a quarter, and the voxel is coarsened (with a warning) when the mesh would need more than half (0 = no budget)", "range": (0.0, 1e6)})
+    memory_gb: float = field(default=2.0, metadata={"flag": "--fusion-memory", "metavar": "GB", "help": "TSDF: memory budget of the fusion, GB: depth frames are kept on disk and read one at a time when they would hold more than a quarter of it, the grid is fused in chunks of at most a quarter, and the voxel is coarsened (with a warning) when the mesh would need more than half (0 = no budget)", "range": (0.0, 1e6)})
     grid_budget_gb: float | None = field(default=0.5, metadata={"help": "TSDF: largest voxel grid held at once, GB; a larger scene is fused in chunks that each fit (same mesh; 0 = one grid)", "range": (0.0, 1e6)})
     poisson_depth: int = field(default=0, metadata={"help": "poisson: octree depth (0 = a cell of about 2 pixel footprints, depth 5 to 10)", "range": (0, 16)})
     poisson_trim: float = field(default=0.02, metadata={"help": "poisson: drop the surface where the sample density is below this quantile of the vertices' densities (0 = off)", "range": (0.0, 1.0)})
@@ -75,8 +75,8 @@ def budget_share(cfg: FusionConfig, part: str) -> float:
 
 
 def frames_hold_bytes(cfg: FusionConfig) -> float | None:
-    """What ``load_frames`` may hold in memory before it reads the frames one at a time (TSDF fusion, which
-    streams them); None: no limit (the other meshers keep every frame)."""
+    """What ``load_frames`` may hold in memory before it keeps the frames on disk and reads them one at a time
+    (TSDF fusion, which streams them); None: no limit (the other meshers keep every frame)."""
     if cfg.mesher != "tsdf" or cfg.watertight or not cfg.memory_gb:
         return None
     return budget_share(cfg, "frames")

@@ -27,7 +27,7 @@ from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
 from ..progress import bar
 from ..resources import available_bytes, release_memory
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share
-from .frames import _sample_depth_points, full_frame, nonempty, pixel_footprint, scene_diagonal
+from .frames import FrameStore, _sample_depth_points, full_frame, nonempty, pixel_footprint, scene_diagonal
 from .grid import _cell_keys
 
 log = logging.getLogger("photorecon")
@@ -225,8 +225,15 @@ def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc:
     """TSDF integration with a per-pixel weight (the confidence map), on the grid's own voxel storage: Open3D's
     ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF
     (and of the colour, 0..255, mid-grey where the frame has none)."""
+    import open3d.core as o3c
+
     hm = vbg.hashmap()
-    hm.activate(block_coords)
+    _, found = hm.find(block_coords)
+    fresh = ~found.numpy().astype(bool)
+    if fresh.any():
+        # only the blocks not in the grid yet: the hash map counts every key it is given against its capacity
+        # and, when they exceed it, doubles its storage (a copy of every block: seconds, and twice the memory)
+        hm.activate(o3c.Tensor(np.ascontiguousarray(block_coords.numpy()[fresh])))
     buf, _ = hm.find(block_coords)  # after activate: the storage may have been reallocated
     T = np.ascontiguousarray(f.view.cam_from_world, np.float64)
     intr = f.view.intrinsics
@@ -467,14 +474,20 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     trunc = cfg.trunc_voxels * voxel
     depth_max = _depth_max(frames, trunc)
     probe = _new_grid(voxel, 64)
-    plans = []  # per frame: (coords, planar-normal mask or None, weighted)
+    # per frame: (coords, planar-normal mask or None, weighted, whether its weights are 1 per valid pixel)
+    plans = []
+    store = isinstance(frames, FrameStore)
     for i in bar(range(len(frames)), desc="tsdf blocks"):
         f = full_frame(frames, i)
         g, coords, weighted = _frame_blocks(probe, f, cfg, voxel, depth_max)
-        keep = None
+        keep, ones = None, g.confidence is not f.confidence
         if g.normal is not None and g.normal is not f.normal:
-            keep = np.packbits(np.any(g.normal != 0, axis=2), axis=None)
-        plans.append((coords, keep, weighted))
+            if store:  # the frame on disk as integrated: its normals where planar_normals keeps them
+                frames.replace_frame(i, replace(g, confidence=f.confidence))
+            else:
+                keep = np.packbits(np.any(g.normal != 0, axis=2), axis=None)
+        plans.append((coords, keep, weighted, ones))
+        del f, g
     del probe
     allb = np.unique(np.concatenate([p[0] for p in plans]), axis=0)
     per_block = _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # storage, and marching cubes' buffers
@@ -494,7 +507,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
             count = int(_in_box(allb, lo - 1, hi + 1).sum())
         vbg = _new_grid(voxel, int(count * 1.05) + 64)
         for i in bar(range(len(frames)), desc="tsdf fusion") if not chunk else range(len(frames)):
-            coords, keep, weighted = plans[i]
+            coords, keep, weighted, ones = plans[i]
             if lo is not None:
                 coords = coords[_in_box(coords, lo - 1, hi + 1)]
                 if not len(coords):
@@ -503,7 +516,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
             if keep is not None:
                 mask = np.unpackbits(keep, count=f.depth.size).reshape(f.depth.shape).astype(bool)
                 f = replace(f, normal=np.where(mask[..., None], np.asarray(f.normal, np.float32), np.float32(0)))
-            if weighted and f.confidence is None:
+            if ones:
                 f = replace(f, confidence=(f.depth > 0).astype(np.float32))
             _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
         V, F, C = _extract(vbg, cfg)

@@ -1,0 +1,238 @@
+"""Hole filling after the geometric filter: depth for the small gaps that the filter leaves between confirmed
+pixels, only where other views' depth maps confirm it.
+
+A pixel loses its depth in the filter when PatchMatch's plane at it is wrong: next to a depth edge its window
+straddles the edge and the nearer surface wins (the edge "fattens"), and on weak texture the cost has no clear
+minimum. In both cases a confirmed neighbour across the gap often carries the right plane. ``fill_holes``
+(the setting ``fill_gaps``):
+
+1. **Holes**: the 8-connected components of pixels without depth, inside the view's mask, not touching the
+   image border, of at most ``fill_max_gap`` pixels (a larger gap is a surface the views do not see, or the
+   background).
+2. **Candidates**: for each hole pixel, the planes (depth and PatchMatch normal) of the nearest confirmed pixel
+   in each of 8 directions, extended to the pixel (fronto-parallel where the plane is seen edge-on); only
+   neighbours whose straight path to the pixel runs through the hole.
+3. **Evidence**: each candidate goes through the same geometric test as PatchMatch's own depths
+   (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
+   must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
+   3x3 neighbourhood and the matching sources' around its projection (the best source) must be at most the
+   ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths (their noise level: 0.007-0.012 on
+   the synthetic pairs) and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
+   Next to a depth edge the other view's depth map is "fattened" like the reference's, so the near side's plane
+   can be confirmed geometrically where the pixel shows the far side: the images tell them apart.
+4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
+   candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
+   confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
+
+A filled depth has the same multi-view support as any kept depth: a gap that the other views do not see (an
+occlusion) or see otherwise stays a gap. On synthetic rectified pairs (``tools/bench_stereo.py``) the fill
+answers 0.5-0.7% more of the pixels both views see, almost all next to depth edges, and the share of answers
+off by more than 2 px of disparity stays as it was.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from .config import DepthResult, MVSConfig
+from .filter import consistency_count
+
+FILL_CONFIDENCE = 0.25  # a filled pixel's lowest confidence (its TSDF weight): a pair confirms with k = 1
+PHOTO_QUANTILE = 0.95  # a candidate's photometric error at most this quantile of the kept depths' own errors ...
+PHOTO_RATIO = 1.2  # ... and at most this factor above the lowest of the pixel's candidates (confirmed or not)
+PHOTO_SAMPLES = 20000  # kept depths sampled for that quantile
+EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to the pixel's ray) -> fronto-parallel
+MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
+DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
+
+
+def fill_on(cfg: MVSConfig, n_views: int) -> bool:
+    """Whether a view checked against ``n_views`` other views gets the fill: ``fill_gaps`` on, or auto and one
+    view (a stereo pair: there it answers 0.5-0.7% more pixels within 2 px of disparity on the synthetic pairs of
+    ``tools/bench_stereo.py``, the share of wrong answers unchanged)."""
+    return cfg.fill_gaps == "on" or (cfg.fill_gaps == "auto" and n_views == 1)
+
+
+def fillable_holes(depth: np.ndarray, mask: np.ndarray | None, max_hole: int) -> np.ndarray:
+    """(H, W) bool: the pixels without depth in 8-connected gaps of at most ``max_hole`` pixels that lie wholly
+    inside ``mask`` (True = foreground; None = all) and do not touch the image border."""
+    empty = ~(depth > 0)
+    lab, n = ndi.label(empty, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return np.zeros(depth.shape, bool)
+    size = np.bincount(lab.ravel(), minlength=n + 1)
+    ok = size <= max_hole
+    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    ok[border] = False
+    if mask is not None:
+        ok[np.unique(lab[empty & ~mask])] = False
+    ok[0] = False
+    return ok[lab]
+
+
+def _nearest_in_direction(valid: np.ndarray, dy: int, dx: int) -> tuple[np.ndarray, np.ndarray]:
+    """For every pixel, the nearest ``valid`` pixel reached by stepping (dy, dx) from it (itself excluded):
+    (row, column) arrays, -1 where the walk leaves the image first."""
+    H, W = valid.shape
+    ny = np.full((H, W), -1, np.int64)
+    nx = np.full((H, W), -1, np.int64)
+    # walk against the direction: the answer at p is p + step if that is valid, else the answer at p + step
+    ys = range(H - 1, -1, -1) if dy > 0 else range(H) if dy < 0 else None
+    xs = range(W - 1, -1, -1) if dx > 0 else range(W) if dx < 0 else None
+    if dy == 0:  # along rows, all rows at once
+        for x in xs:
+            x1 = x + dx
+            if not 0 <= x1 < W:
+                continue
+            hit = valid[:, x1]
+            ny[:, x] = np.where(hit, np.arange(H), ny[:, x1])
+            nx[:, x] = np.where(hit, x1, nx[:, x1])
+        return ny, nx
+    for y in ys:  # row by row, each row from the one after it
+        y1 = y + dy
+        if not 0 <= y1 < H:
+            continue
+        cols = np.arange(W) + dx
+        inside = (cols >= 0) & (cols < W)
+        c = np.clip(cols, 0, W - 1)
+        hit = valid[y1, c] & inside
+        ny[y] = np.where(hit, y1, np.where(inside, ny[y1, c], -1))
+        nx[y] = np.where(hit, c, np.where(inside, nx[y1, c], -1))
+    return ny, nx
+
+
+def _extend_plane(depth: np.ndarray, normal: np.ndarray | None, Kinv: np.ndarray, py: np.ndarray, px: np.ndarray,
+                  qy: np.ndarray, qx: np.ndarray) -> np.ndarray:
+    """The depth at pixels (py, px) of the planes of pixels (qy, qx) (their depth and normal, camera frame);
+    the neighbour's own depth where its plane is seen edge-on or has no normal."""
+    zq = depth[qy, qx].astype(np.float64)
+    if normal is None:
+        return zq
+    rq = np.stack([qx, qy, np.ones_like(qx)], 1).astype(np.float64) @ Kinv.T
+    rp = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T
+    n = normal[qy, qx].astype(np.float64)
+    num = np.einsum("ij,ij->i", n, rq) * zq
+    den = np.einsum("ij,ij->i", n, rp)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = num / den
+    edge_on = np.abs(den) < EDGE_ON_COS * np.linalg.norm(rp, axis=1)
+    bad = ~np.isfinite(z) | edge_on | (z <= 0) | (z > zq * MAX_DEPTH_RATIO) | (z < zq / MAX_DEPTH_RATIO)
+    return np.where(bad, zq, z)
+
+
+def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``img`` at the sub-pixel positions (x, y), bilinear, clamped at the border."""
+    h, w = img.shape
+    x = np.clip(x, 0, w - 1)
+    y = np.clip(y, 0, h - 1)
+    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2) if w > 1 else np.zeros(len(x), np.int64)
+    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2) if h > 1 else np.zeros(len(y), np.int64)
+    fx, fy = x - x0, y - y0
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
+    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[np.ndarray, object]],
+                      py: np.ndarray, px: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Per pixel (py, px) at depth z of view ``r`` (grey image ``grey``): the mean absolute grey difference of its
+    3x3 neighbourhood and the source images' (``images``: name -> (grey, view)) around its projection, the
+    lowest over the sources (occlusion-robust); +inf where it projects into none."""
+    Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
+    X = (np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T) * z[:, None]
+    world_from_ref = np.linalg.inv(r.view.cam_from_world)
+    Xw = X @ world_from_ref[:3, :3].T + world_from_ref[:3, 3]
+    H, W = grey.shape
+    offs = [(oy, ox) for oy in (-1, 0, 1) for ox in (-1, 0, 1)]
+    ref = np.stack([grey[np.clip(py + oy, 0, H - 1), np.clip(px + ox, 0, W - 1)] for oy, ox in offs], 1)
+    best = np.full(len(py), np.inf)
+    for img, view in images.values():
+        T = view.cam_from_world
+        Xs = Xw @ T[:3, :3].T + T[:3, 3]
+        K = np.asarray(view.intrinsics.K, np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (K[0, 0] * Xs[:, 0] + K[0, 1] * Xs[:, 1]) / Xs[:, 2] + K[0, 2]
+            v = K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2]
+        hs, ws = img.shape
+        ok = (Xs[:, 2] > 0) & (u >= 0) & (v >= 0) & (u <= ws - 1) & (v <= hs - 1)
+        u0, v0 = np.nan_to_num(u), np.nan_to_num(v)
+        src = np.stack([_bilinear(img, u0 + ox, v0 + oy) for oy, ox in offs], 1)
+        e = np.abs(src - ref).mean(1)
+        best = np.where(ok, np.minimum(best, e), best)
+    return best
+
+
+def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
+               images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """Fill the small holes of ``r`` (its depth after the geometric filter; its normals PatchMatch's) with
+    neighbours' planes that at least ``need`` of ``sources`` confirm (``consistency_count`` with ``cfg``, the
+    filter's settings) and the images accept (``photometric_error`` of ``grey``, the view's image, against
+    ``images``, name -> (grey image, view) of its matching sources). Changes ``r.depth``, ``r.normal`` and
+    ``r.confidence`` in place; returns the filled pixels (bool) and stats."""
+    d = r.depth
+    holes = fillable_holes(d, mask, cfg.fill_max_gap)
+    stats = {"hole_pixels": int(holes.sum()), "filled": 0}
+    if not holes.any() or need < 1:
+        return np.zeros(d.shape, bool), stats
+    valid = d > 0
+    py, px = np.nonzero(holes)
+    Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
+    n_dir = len(DIRECTIONS)
+    z_c = np.zeros((n_dir, len(py)))
+    cnt_c = np.zeros((n_dir, len(py)), np.int32)
+    e_c = np.full((n_dir, len(py)), np.inf)
+    q_c = np.full((n_dir, len(py), 2), -1, np.int64)
+    for k, (dy, dx) in enumerate(DIRECTIONS):
+        ny, nx = _nearest_in_direction(valid, dy, dx)
+        qy, qx = ny[py, px], nx[py, px]
+        ok = qy >= 0
+        # the path to the neighbour runs through hole pixels only (walks stop at the first valid pixel, so
+        # only the pixel before it has to be checked to be in a fillable hole, not a masked or large gap)
+        steps = np.maximum(np.abs(qy - py), np.abs(qx - px))
+        by, bx = qy - dy, qx - dx
+        ok &= (steps <= 1) | holes[np.clip(by, 0, d.shape[0] - 1), np.clip(bx, 0, d.shape[1] - 1)]
+        if not ok.any():
+            continue
+        cand = np.zeros(d.shape, np.float32)
+        z = _extend_plane(d, r.normal, Kinv, py[ok], px[ok], qy[ok], qx[ok])
+        cand[py[ok], px[ok]] = z
+        cn = None
+        if r.normal is not None:
+            cn = np.zeros(r.normal.shape, np.float32)
+            cn[py[ok], px[ok]] = r.normal[qy[ok], qx[ok]]
+        cnt, _, _ = consistency_count(dataclasses.replace(r, depth=cand, normal=cn), sources, cfg)
+        z_c[k, ok] = z
+        cnt_c[k, ok] = cnt[py[ok], px[ok]]
+        q_c[k, ok] = np.stack([qy[ok], qx[ok]], 1)
+        e_c[k, ok] = photometric_error(grey, r, images, py[ok], px[ok], z)
+    vy, vx = np.nonzero(valid)
+    step = max(1, len(vy) // PHOTO_SAMPLES)
+    e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
+    e_kept = e_kept[np.isfinite(e_kept)]
+    e_max = float(np.quantile(e_kept, PHOTO_QUANTILE)) if len(e_kept) else 0.0
+    e_min = np.min(np.where(z_c > 0, e_c, np.inf), axis=0)
+    confirmed = (cnt_c >= need) & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
+    has = confirmed.any(0)
+    lo = np.min(np.where(confirmed, z_c, np.inf), axis=0)
+    hi = np.max(np.where(confirmed, z_c, -np.inf), axis=0)
+    agree = has & (hi - lo <= cfg.rel_depth * lo)
+    best = np.argmin(np.where(confirmed, e_c, np.inf), axis=0)
+    sel = np.flatnonzero(agree)
+    fy, fx = py[sel], px[sel]
+    k = best[sel]
+    d[fy, fx] = z_c[k, sel]
+    qy, qx = q_c[k, sel, 0], q_c[k, sel, 1]
+    if r.normal is not None:
+        r.normal[fy, fx] = r.normal[qy, qx]
+    if r.confidence is not None:
+        kk = cnt_c[k, sel].astype(np.float32)
+        r.confidence[fy, fx] = np.maximum(FILL_CONFIDENCE, 1.0 - 1.0 / np.maximum(kk, 1))
+    filled = np.zeros(d.shape, bool)
+    filled[fy, fx] = True
+    stats["filled"] = int(len(sel))
+    stats["conflicting"] = int((has & ~agree).sum())
+    stats["photo_max"] = e_max
+    return filled, stats
