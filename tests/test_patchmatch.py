@@ -238,28 +238,20 @@ def test_views_without_sources_are_skipped_with_a_reason(blob_small, tmp_path):
 
 
 def test_extra_geometric_round_at_the_chosen_level():
-    """ACMM's extra geometric round runs right after its level's own round: last at full resolution by default,
-    before the full-resolution round with --pm-final-level 1 (so one full-resolution round instead of two)."""
-    from photorecon.depth.patchmatch import pm_rounds
-
-    assert pm_rounds(MVSConfig()) == [(2, False, 5), (1, True, 1), (0, True, 1), (0, True, 1)]
-    assert pm_rounds(MVSConfig(pm_final_level=1)) == [(2, False, 5), (1, True, 1), (1, True, 1), (0, True, 1)]
-    assert pm_rounds(MVSConfig(pm_final_level=5)) == pm_rounds(MVSConfig(pm_final_level=1))  # clamped to the pyramid
-    assert pm_rounds(MVSConfig(pm_levels=1)) == [(0, False, 5), (0, True, 1)]
-    assert pm_rounds(MVSConfig(pm_final_iterations=0)) == [(2, False, 5), (1, True, 1), (0, True, 1)]
-
-
-def test_one_full_resolution_round_when_the_geometric_round_is_its_only_pass():
-    """--pm-full-iterations 0: the extra geometric round is the full-resolution level's one round, right after the
-    half-resolution one, and it is the round that leaves the pixels other views confirm as they are."""
+    """ACMM's extra geometric round runs right after its level's own round (full resolution, last, by default), or
+    is that level's one round (--no-pm-final-own-round); with --pm-final-level 1 it runs at half resolution, and
+    it is the round that leaves the pixels other views confirm as they are."""
     from photorecon.depth.patchmatch import _rounds, pm_rounds
 
-    assert _rounds(MVSConfig(pm_full_iterations=1)) == ([(2, False, 5), (1, True, 1), (0, True, 1), (0, True, 1)], 3)
-    assert _rounds(MVSConfig(pm_full_iterations=0)) == ([(2, False, 5), (1, True, 1), (0, True, 1)], 2)
-    assert _rounds(MVSConfig(pm_full_iterations=0, pm_levels=1)) == ([(0, False, 5), (0, True, 1)], 1)
-    # no extra round at full resolution: the level keeps a round of its own (it upsamples) and none skips pixels
-    assert _rounds(MVSConfig(pm_full_iterations=0, pm_final_iterations=0)) == ([(2, False, 5), (1, True, 1), (0, True, 0)], -1)
-    assert pm_rounds(MVSConfig(pm_full_iterations=0, pm_final_level=1))[-1] == (0, True, 0)
+    assert _rounds(MVSConfig(pm_final_own_round=False)) == ([(2, False, 5), (1, True, 1), (0, True, 1)], 2)
+    assert _rounds(MVSConfig(pm_final_own_round=True)) == ([(2, False, 5), (1, True, 1), (0, True, 1), (0, True, 1)], 3)
+    assert pm_rounds(MVSConfig(pm_final_level=1, pm_final_own_round=False)) == [(2, False, 5), (1, True, 1), (0, True, 1)]
+    assert _rounds(MVSConfig(pm_final_level=1, pm_final_own_round=True)) == (
+        [(2, False, 5), (1, True, 1), (1, True, 1), (0, True, 1)], 2)
+    assert pm_rounds(MVSConfig(pm_final_level=5)) == pm_rounds(MVSConfig(pm_final_level=1))  # clamped to the pyramid
+    assert _rounds(MVSConfig(pm_levels=1, pm_final_own_round=False)) == ([(0, False, 5), (0, True, 1)], 1)
+    # no extra round: every finer level has its own
+    assert _rounds(MVSConfig(pm_final_iterations=0, pm_final_own_round=False)) == ([(2, False, 5), (1, True, 1), (0, True, 1)], -1)
 
 
 def test_pruned_pixels_are_those_far_from_any_matched_surface():

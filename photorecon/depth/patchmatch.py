@@ -270,7 +270,7 @@ def count_work(work: np.ndarray) -> dict[str, int]:
 def pm_rounds(cfg) -> list[tuple[int, bool, int]]:
     """The rounds of multi-scale PatchMatch, coarse to fine: (pyramid level, geometric term, iterations); ACMM's
     extra geometric round at level ``pm_final_level`` (0: full resolution, last), right after that level's own
-    (at full resolution, ``pm_full_iterations`` 0 leaves it the level's one round)."""
+    (without ``pm_final_own_round``: that level's one round)."""
     return _rounds(cfg)[0]
 
 
@@ -283,9 +283,8 @@ def _rounds(cfg) -> tuple[list[tuple[int, bool, int]], int]:
     rounds = [(levels - 1, False, cfg.pm_iterations)]
     index = -1
     for lvl in reversed(range(levels - 1)):
-        iters = cfg.pm_fine_iterations if lvl > 0 else cfg.pm_full_iterations
-        if iters > 0 or not (final and lvl == final_level):
-            rounds.append((lvl, cfg.geom_consistency, iters))
+        if cfg.pm_final_own_round or not (final and lvl == final_level):
+            rounds.append((lvl, cfg.geom_consistency, cfg.pm_fine_iterations))
         if final and lvl == final_level:
             index = len(rounds)
             rounds.append((lvl, True, cfg.pm_final_iterations))
