@@ -90,7 +90,10 @@ def main() -> int:
     over = {}
     for item in args.set:
         name, _, value = item.partition("=")
-        over[name.strip()] = ast.literal_eval(value.strip())
+        try:
+            over[name.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):  # a word: a choice such as pm_fine_views=current
+            over[name.strip()] = value.strip()
     cfg = MVSConfig(**over)
     warm = warm_up()
     instrument()

@@ -37,6 +37,8 @@ class MVSConfig:
     pm_iterations: int = field(default=5, metadata={"help": "patchmatch: iterations at the coarsest level", "range": (1, 100)})
     pm_fine_iterations: int = field(default=1, metadata={"help": "patchmatch: iterations at each finer level", "range": (0, 100)})
     pm_final_iterations: int = field(default=1, metadata={"help": "patchmatch: extra geometric-consistency iterations (0 = none)", "range": (0, 100)})
+    pm_final_own_round: bool = field(default=True, metadata={"help": "patchmatch: the level of the extra geometric-consistency round also gets a round of its own (--pm-fine-iterations) before it; off: the geometric round is that level's one pass (at full resolution about half the NCC evaluations, and less of the surface confirmed: see docs/benchmarks.md)"})
+    pm_prune_cost: float = field(default=1.0, metadata={"help": "patchmatch: after the coarsest level, pixels whose previous round's cost exceeds this, and every neighbour's within 2 of that round's pixels too, are not computed (no depth there: no surface matched around them); 0 = off", "range": (0.0, 4.0)})
     pm_final_level: int = field(default=0, metadata={"help": "patchmatch: pyramid level of the extra geometric-consistency round (0 = full resolution; 1 = half: faster)", "range": (0, 7)})
     pm_skip_consistent: int = field(default=2, metadata={"help": "patchmatch: the extra geometric round skips pixels that this many sources confirm within 1 pixel (0 = off)", "range": (0, 256)})
     pm_radius: int = field(default=5, metadata={"help": "patchmatch: NCC window radius, pixels (with --pm-stride 2, radius 5 = 6x6 samples over 11x11 pixels)", "range": (1, 32)})

@@ -269,18 +269,29 @@ def count_work(work: np.ndarray) -> dict[str, int]:
 
 def pm_rounds(cfg) -> list[tuple[int, bool, int]]:
     """The rounds of multi-scale PatchMatch, coarse to fine: (pyramid level, geometric term, iterations); ACMM's
-    extra geometric round at level ``pm_final_level`` (0: full resolution, last), right after that level's own."""
+    extra geometric round at level ``pm_final_level`` (0: full resolution, last), right after that level's own
+    (without ``pm_final_own_round``: that level's one round)."""
+    return _rounds(cfg)[0]
+
+
+def _rounds(cfg) -> tuple[list[tuple[int, bool, int]], int]:
+    """``pm_rounds`` and the index of the extra geometric round (-1: none), the round that leaves the pixels the
+    other views already confirm as they are (``pm_skip_consistent``)."""
     levels = max(1, int(cfg.pm_levels))
     final = cfg.geom_consistency and cfg.pm_final_iterations > 0
     final_level = min(max(0, int(cfg.pm_final_level)), levels - 2) if levels > 1 else 0
     rounds = [(levels - 1, False, cfg.pm_iterations)]
+    index = -1
     for lvl in reversed(range(levels - 1)):
-        rounds.append((lvl, cfg.geom_consistency, cfg.pm_fine_iterations))
+        if cfg.pm_final_own_round or not (final and lvl == final_level):
+            rounds.append((lvl, cfg.geom_consistency, cfg.pm_fine_iterations))
         if final and lvl == final_level:
+            index = len(rounds)
             rounds.append((lvl, True, cfg.pm_final_iterations))
     if final and levels == 1:
+        index = len(rounds)
         rounds.append((0, True, cfg.pm_final_iterations))
-    return rounds
+    return rounds, index
 
 
 def round_sources(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> list[str]:
@@ -336,13 +347,30 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
             prior = (init[0].copy(), np.array(init[1], np.float32), c_prev)
         if geometric and src_names:
             geo = ([load(s, r - 1, "depth") for s in src_names], [level_view(by_name[s].view, prev_lvl) for s in src_names])
+    active = mask(name, ref) if mask is not None else None
+    if not first and cfg.pm_prune_cost > 0:
+        keep = pruned_active(load(name, r - 1, "depth"), load(name, r - 1, "cost"), cfg.pm_prune_cost, ref)
+        active = keep if active is None else active & keep
     depth, normal, cost = patchmatch_view(
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params.at_size(ref), iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
         init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
-        skip_consistent=cfg.pm_skip_consistent if not first and rounds[r - 1][0] == lvl else 0,
-        active=mask(name, ref) if mask is not None else None, select_current=not first and cfg.pm_fine_views == "current")
+        skip_consistent=cfg.pm_skip_consistent if r == _rounds(cfg)[1] else 0,
+        active=active, select_current=not first and cfg.pm_fine_views == "current")
     return depth, normal, cost, ref
+
+
+def pruned_active(depth: np.ndarray, cost: np.ndarray, max_cost: float, ref: View, grow: int = 2) -> np.ndarray:
+    """The pixels of ``ref`` worth computing after a round that gave (``depth``, ``cost``): those within ``grow``
+    of that round's pixels of a valid depth matched at a cost of at most ``max_cost`` (at that round's
+    resolution), as a (H, W) bool at ``ref``'s."""
+    good = ((depth > 0) & (cost <= max_cost)).astype(np.uint8)
+    if grow > 0:
+        good = cv2.dilate(good, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
+    W, H = ref.intrinsics.size
+    if good.shape != (H, W):
+        good = cv2.resize(good, (W, H), interpolation=cv2.INTER_NEAREST)
+    return good > 0
 
 
 def patchmatch_all(jobs: list[PMJob], image: Callable[[str, View], np.ndarray], cfg) -> dict[str, tuple]:
