@@ -521,8 +521,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         err_n = sum(r["err_n"] for r in filtered.values())
         consistency["mean_reprojection_px"] = sum(r["err_sum"] for r in filtered.values()) / err_n if err_n else float("nan")
         before = sum(r["before"] for r in filtered.values())
-        consistency["kept_fraction"] = sum(r["after"] for r in filtered.values()) / before if before else 0.0
         after = sum(r["after"] for r in filtered.values())
+        consistency["kept_fraction"] = after / before if before else 0.0
         consistency["filled_fraction"] = sum(r.get("filled", 0) for r in filtered.values()) / after if after else 0.0
     stats = {}
     for v in model.views:

@@ -319,7 +319,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     read). ``mask(name, view)``: the view's foreground at ``view``'s resolution, or None: pixels outside it are not
     computed (their depth would be dropped anyway). Returns (depth, normal, cost, view at this round's resolution)."""
     cfg = params.cfg
-    rounds = pm_rounds(cfg)
+    rounds, final_round = _rounds(cfg)
     lvl, geometric, iters = rounds[r]
     first = r == 0
     name = job.view.name
@@ -327,12 +327,14 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     src_names = round_sources(job, r, by_name, cfg)
     srcs = [level_view(by_name[s].view, lvl) for s in src_names]
     init = c_init = geo = prior = None
+    active = mask(name, ref) if mask is not None else None
     if not first:
         prev_lvl = rounds[r - 1][0]
         v_prev = level_view(job.view, prev_lvl)
-        d_prev, n_prev = load(name, r - 1, "depth"), load(name, r - 1, "normal")
+        d_prev, n_prev, cost_prev = (load(name, r - 1, what) for what in ("depth", "normal", "cost"))
+        c_up = cv2.resize(cost_prev, ref.intrinsics.size, interpolation=cv2.INTER_NEAREST)
         if cfg.pm_reuse_cost:
-            c_init = cv2.resize(load(name, r - 1, "cost"), ref.intrinsics.size, interpolation=cv2.INTER_NEAREST)
+            c_init = c_up
         if v_prev.intrinsics.size == ref.intrinsics.size:
             init = (d_prev.copy(), n_prev)
         else:
@@ -342,20 +344,17 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
                                        np.linalg.inv(_pinhole_K(ref)), d, n)
             init = (d, n)
         if cfg.planar_prior:
-            c_prev = c_init if c_init is not None else cv2.resize(load(name, r - 1, "cost"), ref.intrinsics.size,
-                                                                  interpolation=cv2.INTER_NEAREST)
-            prior = (init[0].copy(), np.array(init[1], np.float32), c_prev)
+            prior = (init[0].copy(), np.array(init[1], np.float32), c_up)
         if geometric and src_names:
             geo = ([load(s, r - 1, "depth") for s in src_names], [level_view(by_name[s].view, prev_lvl) for s in src_names])
-    active = mask(name, ref) if mask is not None else None
-    if not first and cfg.pm_prune_cost > 0:
-        keep = pruned_active(load(name, r - 1, "depth"), load(name, r - 1, "cost"), cfg.pm_prune_cost, ref)
-        active = keep if active is None else active & keep
+        if cfg.pm_prune_cost > 0:
+            keep = pruned_active(d_prev, cost_prev, cfg.pm_prune_cost, ref)
+            active = keep if active is None else active & keep
     depth, normal, cost = patchmatch_view(
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params.at_size(ref), iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
         init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
-        skip_consistent=cfg.pm_skip_consistent if r == _rounds(cfg)[1] else 0,
+        skip_consistent=cfg.pm_skip_consistent if r == final_round else 0,
         active=active, select_current=not first and cfg.pm_fine_views == "current")
     return depth, normal, cost, ref
 

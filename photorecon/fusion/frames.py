@@ -144,8 +144,7 @@ class FrameStore(Sequence):
 
     MAPS = ("depth", "color", "confidence", "normal")
 
-    def __init__(self, dataset, cfg: FusionConfig, folder=None):
-        self.dataset, self.cfg = dataset, cfg
+    def __init__(self, folder=None):
         self.views: list[View] = []
         self.bytes_per_frame: list[int] = []
         self._frame_views: list[View] = []
@@ -238,7 +237,7 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None,
             continue
         held += frame_bytes(f)
         if store is None and hold_bytes is not None and held > hold_bytes:
-            store = FrameStore(dataset, cfg, folder)
+            store = FrameStore(folder)
             for g, w in zip(frames, originals):
                 store.append(w, g)
             frames = []
