@@ -84,6 +84,8 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="an MVSConfig setting (repeatable)")
     ap.add_argument("--score", action="store_true", help="fuse, clean and score the result (bench_real.run_one)")
     ap.add_argument("--ncc-ns", type=float, default=None, help="one NCC evaluation's cost, ns (tools/bench_ncc.py)")
+    ap.add_argument("--profile", action="store_true",
+                    help="also CPU seconds per view of each kernel call and of the work around them (tools/bench_pm_profile.py)")
     ap.add_argument("--json")
     args = ap.parse_args()
     progress.set_enabled(False)
@@ -96,10 +98,16 @@ def main() -> int:
             over[name.strip()] = value.strip()
     cfg = MVSConfig(**over)
     warm = warm_up()
+    if args.profile:
+        import bench_pm_profile
+
+        bench_pm_profile.instrument()
     instrument()
     results = []
     for name in args.only.split(","):
         ROUNDS.clear()
+        if args.profile:
+            bench_pm_profile.ACC.clear()
         if name == "speed":
             from bench_pm_variants import scene_root
 
@@ -151,12 +159,18 @@ def main() -> int:
                "warm_up_s": round(warm, 1), **{k: v for k, v in row.items() if not isinstance(v, (dict, list))}, "rounds": rows}
         if args.ncc_ns:
             res["ncc_floor_cpu_s"] = round(total * args.ncc_ns * 1e-9, 1)
+        if args.profile:
+            res["profile_cpu_s_per_view"] = {k: round(v[0] / views, 3) for k, v in sorted(bench_pm_profile.ACC.items())}
         results.append(res)
         print(json.dumps({k: v for k, v in res.items() if k != "rounds"}), flush=True)
         cols = list(rows[0]) if rows else []
         print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
         for r in rows:
             print("| " + " | ".join(str(r[c]) for c in cols) + " |")
+        if args.profile:
+            print("| part | CPU s per view | share of the depth stage |\n|---|---|---|")
+            for k, v in res["profile_cpu_s_per_view"].items():
+                print(f"| {k} | {v:.2f} | {v * views / max(depth_cpu, 1e-9):.1%} |")
         if args.json:
             Path(args.json).write_text(json.dumps(results, indent=1))
     return 0
