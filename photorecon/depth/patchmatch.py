@@ -19,6 +19,9 @@ Per reference view and per pyramid level, coarse to fine:
   round at full resolution uses the full-resolution depth maps of the other views, and leaves the pixels that
   ``pm_skip_consistent`` of them already confirm as they are.
 * **Masks**: pixels outside a view's mask are never computed (their depth would be dropped anyway).
+* **Sources carried between rounds** (``pm_carry_views``): after the coarsest level, a pixel matches only the
+  sources that the view selection of the round before used there or at the neighbours it takes candidates
+  from; a source that sees none of the pixel's surface stops costing evaluations.
 
 Results are ``DepthResult``s at working resolution with a per-pixel normal; the caller (``mvs.run_mvs``)
 filters them (confidence, geometric consistency between views) and writes them.
