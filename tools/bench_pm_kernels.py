@@ -55,7 +55,7 @@ def run(m, use_geo, n_refine, reps=1):
             m.pm_pass(color, it, rimg, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, 0.2, 3.0,
                       params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, params.rdy, params.rdx, params.rn,
                       dmin, dmax, 0.8, 1.2, 2, 3, 0.3, 0.02, 0, n_refine, 1e-3, float(np.cos(np.radians(1.5))), 1.0, 0, False, depth, normal, cost,
-                      np.zeros((depth.shape[0], m.N_COUNTS), np.int64))
+                      np.zeros((depth.shape[0], m.N_COUNTS), np.int64), np.zeros((1, 1), np.int32), False)
     return time.process_time() - t0, time.perf_counter() - w0, depth
 
 gtm = gts[0] > 0

@@ -528,7 +528,7 @@ def _current_views(srcs, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, min_var, A
 def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam_geo, delta_geo,
             sdy, sdx, sspat, sigma_c, min_var, rdy, rdx, rn, dmin, dmax,
             tau_good, tau_bad, n_good, n_bad, sigma_conf, pert, seed, n_refine, same_depth, same_cos, skip_px, skip_n,
-            select_current, depth, normal, cost, counts):
+            select_current, depth, normal, cost, counts, views, views_read):
     """One red or black half-iteration of ACMH: for every pixel of ``color`` ((x + y) % 2 == color),
 
     1. candidates: the current hypothesis and, from each of the 8 regions around it (other colour), the
@@ -550,6 +550,11 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
 
     ``counts`` (H, N_COUNTS) int64 gets, per row, what the pass did (``COUNT_*``: pixels computed, pixels left as
     converged, NCC evaluations of the candidates and of the refinement): the work it did, free of the clock.
+
+    ``views`` (H, W) int32, or (1, 1) for none: each computed pixel's view selection as bits (bit j: source j got a
+    weight). With ``views_read``, a pixel matches only the sources that its own earlier selection or that of a
+    neighbour it takes a candidate from used (all of them when none says): sources no view selection around it
+    used cost no evaluations; the others' costs are as without it.
     """
     H, W = ref.shape
     S = srcs.shape[0]
@@ -558,6 +563,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
     NR = rdy.shape[0]
     NC = 1 + NR
     inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
+    use_views = views.shape[0] == H and views.shape[1] == W and S <= 31
+    all_views = (1 << S) - 1
     inv2conf = 1.0 / (2.0 * sigma_conf * sigma_conf)
     for y in prange(H):
         rv = np.empty(ns, np.float64)
@@ -596,6 +603,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
             nc = 1
+            allowed = views[y, x] if use_views and views_read else 0
             for reg in range(NR):
                 best = 1e30
                 by = -1
@@ -611,6 +619,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                         bx = xx
                 if by < 0:
                     continue
+                if use_views and views_read:
+                    allowed |= views[by, bx]
                 dq = depth[by, bx]
                 n0, n1, n2 = normal[by, bx, 0], normal[by, bx, 1], normal[by, bx, 2]
                 q0 = dq * (Kinv[0, 0] * bx + Kinv[0, 1] * by + Kinv[0, 2])
@@ -625,6 +635,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                 cd[nc] = d
                 cn[nc, 0], cn[nc, 1], cn[nc, 2] = n0, n1, n2
                 nc += 1
+            if allowed == 0:
+                allowed = all_views
             bi = -1
             bc = 1e30
             wsum = 0.0
@@ -649,7 +661,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                             cm[i, j] = cm[same, j]
                         continue
                     for j in range(S):
-                        if not ok[i]:
+                        if not ok[i] or not (allowed >> j) & 1:
                             cm[i, j] = 2.0 + lam_geo * delta_geo
                             continue
                         _homography(A, b, j, m, h)
@@ -703,6 +715,12 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                     if acc < bc:
                         bc = acc
                         bi = i
+            if use_views:
+                used = 0
+                for j in range(S):
+                    if wv[j] > 0:
+                        used |= 1 << j
+                views[y, x] = used
             d0 = cd[bi]
             n0, n1, n2 = cn[bi, 0], cn[bi, 1], cn[bi, 2]
             if not ok[bi]:

@@ -292,14 +292,16 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         def load(n: str, rr: int, what: str) -> np.ndarray:
             return _load(ctx.work / f"r{rr}" / f"{n}.{what}.npy")
 
-        depth, normal, cost, _ = pm_view_round(jobs[name], r, jobs, lambda n, lv: _level_image(ctx, n, lv),
-                                               PatchMatchParams(cfg), load, lambda n, lv: _level_mask(ctx, n, lv))
+        depth, normal, cost, _, views = pm_view_round(jobs[name], r, jobs, lambda n, lv: _level_image(ctx, n, lv),
+                                                      PatchMatchParams(cfg), load, lambda n, lv: _level_mask(ctx, n, lv))
         seconds = time.perf_counter() - t0
         if last:
             _finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
         else:
             _save(ctx.work / f"r{r}" / f"{name}.normal.npy", normal)
             _save(ctx.work / f"r{r}" / f"{name}.cost.npy", cost)
+            if views is not None:
+                _save(ctx.work / f"r{r}" / f"{name}.views.npy", views)
             _save(done, depth)
         return {"seconds": seconds, "cpu_seconds": time.process_time() - c0}
     if kind == "filter":

@@ -19,6 +19,9 @@ Per reference view and per pyramid level, coarse to fine:
   round at full resolution uses the full-resolution depth maps of the other views, and leaves the pixels that
   ``pm_skip_consistent`` of them already confirm as they are.
 * **Masks**: pixels outside a view's mask are never computed (their depth would be dropped anyway).
+* **Sources carried between rounds** (``pm_carry_views``): after the coarsest level, a pixel matches only the
+  sources that the view selection of the round before used there or at the neighbours it takes candidates
+  from; a source that sees none of the pixel's surface stops costing evaluations.
 
 Results are ``DepthResult``s at working resolution with a per-pixel normal; the caller (``mvs.run_mvs``)
 filters them (confidence, geometric consistency between views) and writes them.
@@ -169,7 +172,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                     init_cost: np.ndarray | None = None, n_refine: int = 6,
                     prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, prior_after: bool = False,
                     skip_consistent: int = 0, active: np.ndarray | None = None, counts: dict | None = None,
-                    select_current: bool = False):
+                    select_current: bool = False, views: np.ndarray | None = None, views_read: bool = False):
     """PatchMatch on one reference image at one resolution. ``init``: (depth, normal) to start from (0 depth =
     random), else random planes and the ``seeds`` (world points). ``geo``: the sources' depth maps and their
     views, for the geometric-consistency term. ``init_cost``: the hypotheses' costs when known (the coarser
@@ -182,6 +185,9 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     ``active``: (H, W) bool, the pixels to compute (the view's mask), else all; the others get depth 0.
     ``select_current``: view weights from each pixel's current hypothesis, the other candidates evaluated in
     the weighted sources only (for hypotheses that start good: finer levels), else ACMH's joint view selection.
+    ``views``: (H, W) int32, updated: each computed pixel's view selection as bits (bit j: source j weighted);
+    with ``views_read`` its values on entry (an earlier round's, upsampled) restrict each pixel to the sources that
+    it or the neighbours it takes candidates from used (``_pm_kernels.pm_pass``).
     ``counts``: a dict that gets the work done, as the number of NCC evaluations: ``"initial"`` (the starting
     costs) and ``"iterations"``, per iteration a dict (pixels computed, pixels skipped as converged, evaluations
     of the candidates and of the refinement) (``count_work``).
@@ -234,6 +240,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     if active is not None:
         depth[~active] = -1.0
     work = np.zeros((H, k.N_COUNTS), np.int64)
+    if views is None or views.shape != (H, W) or len(sources) > 31:
+        views, views_read = np.zeros((1, 1), np.int32), False
     for it in range(iterations):
         work[:] = 0
         tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
@@ -244,7 +252,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
                       params.rdy, params.rdx, params.rn, float(dmin), float(dmax),
                       float(tau_good), 1.2, 2, 3, 0.3, float(pert), int(seed), int(n_refine),
                       float(cfg.pm_same_depth), float(np.cos(np.radians(cfg.pm_same_normal_deg))), 1.0, int(skip_consistent),
-                      bool(select_current), depth, normal, cost, work)
+                      bool(select_current), depth, normal, cost, work, views, bool(views_read))
         if counts is not None:
             counts.setdefault("iterations", []).append(count_work(work))
     if prior is not None and prior_after:
@@ -316,8 +324,9 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     """Round ``r`` (of ``pm_rounds``) of PatchMatch for one reference view. ``image(name, view)``: the grey
     float32 image of view ``name`` at ``view``'s resolution; ``load(name, round, what)``: the ``"depth"``,
     ``"normal"`` or ``"cost"`` map of a view after an earlier round (``round_dependencies`` says which are
-    read). ``mask(name, view)``: the view's foreground at ``view``'s resolution, or None: pixels outside it are not
-    computed (their depth would be dropped anyway). Returns (depth, normal, cost, view at this round's resolution)."""
+    read; with ``pm_carry_views`` also ``"views"``). ``mask(name, view)``: the view's foreground at ``view``'s
+    resolution, or None: pixels outside it are not computed (their depth would be dropped anyway). Returns (depth,
+    normal, cost, view at this round's resolution, view selection bits or None: ``patchmatch_view``'s ``views``)."""
     cfg = params.cfg
     rounds, final_round = _rounds(cfg)
     lvl, geometric, iters = rounds[r]
@@ -327,6 +336,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     src_names = round_sources(job, r, by_name, cfg)
     srcs = [level_view(by_name[s].view, lvl) for s in src_names]
     init = c_init = geo = prior = None
+    views = np.zeros((ref.intrinsics.height, ref.intrinsics.width), np.int32) if cfg.pm_carry_views else None
     active = mask(name, ref) if mask is not None else None
     if not first:
         prev_lvl = rounds[r - 1][0]
@@ -343,6 +353,11 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
             _kernels().upsample_planes(d_prev, n_prev, np.linalg.inv(_pinhole_K(v_prev)),
                                        np.linalg.inv(_pinhole_K(ref)), d, n)
             init = (d, n)
+        if views is not None:
+            try:
+                views = _nearest(load(name, r - 1, "views"), views.shape)
+            except (KeyError, OSError):  # a round written without them: every source, this round
+                pass
         if cfg.planar_prior:
             prior = (init[0].copy(), np.array(init[1], np.float32), c_up)
         if geometric and src_names:
@@ -355,8 +370,17 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
         params.at_size(ref), iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
         init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
         skip_consistent=cfg.pm_skip_consistent if r == final_round else 0,
-        active=active, select_current=not first and cfg.pm_fine_views == "current")
-    return depth, normal, cost, ref
+        active=active, select_current=not first and cfg.pm_fine_views == "current", views=views, views_read=not first)
+    return depth, normal, cost, ref, views
+
+
+def _nearest(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``a`` resampled to ``shape`` by taking each pixel centre's nearest pixel (as ``upsample_planes``)."""
+    if a.shape == shape:
+        return np.array(a)
+    yi = np.minimum(((np.arange(shape[0]) + 0.5) * a.shape[0] / shape[0]).astype(np.intp), a.shape[0] - 1)
+    xi = np.minimum(((np.arange(shape[1]) + 0.5) * a.shape[1] / shape[1]).astype(np.intp), a.shape[1] - 1)
+    return np.ascontiguousarray(a[yi[:, None], xi[None, :]])
 
 
 def pruned_active(depth: np.ndarray, cost: np.ndarray, max_cost: float, ref: View, grow: int = 2) -> np.ndarray:
@@ -388,7 +412,8 @@ def patchmatch_all(jobs: list[PMJob], image: Callable[[str, View], np.ndarray], 
         for job in bar(jobs, desc=f"patchmatch {r + 1}/{len(rounds)}"):
             name = job.view.name
             t1 = time.perf_counter()
-            depth, normal, cost, ref = pm_view_round(job, r, by_name, image, params, lambda n, rr, w: maps[n, rr, w])
+            depth, normal, cost, ref, views = pm_view_round(job, r, by_name, image, params, lambda n, rr, w: maps[n, rr, w])
+            maps[name, r, "views"] = views
             timings[name] = timings.get(name, 0.0) + time.perf_counter() - t1
             maps[name, r, "depth"], maps[name, r, "normal"], maps[name, r, "cost"] = depth, normal, cost
             out[name] = (depth, normal.astype(np.float16), cost, ref)
