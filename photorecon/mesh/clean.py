@@ -16,7 +16,7 @@ import trimesh
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
 from ..io.atomic import atomic_path
 from ..fields import check_config
-from .geometry import face_areas, face_centres, face_cross
+from .geometry import face_areas, face_centres, face_cross, triangle_components
 from .scene import detect_and_remove
 
 log = logging.getLogger("photorecon")
@@ -150,35 +150,6 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
         out = simplify(out, cfg.target_faces)
     return out
-
-
-def triangle_components(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
-    """Connected components of triangles that share an edge (as Open3D's ``cluster_connected_triangles``):
-    (per-triangle label (F,), per-component area (C,)). Built from one sorted int64 key per face edge and a
-    sparse face graph, a few tens of bytes per face (Open3D's edge map took about 400 per face)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    F = len(T)
-    if not F:
-        return np.zeros(0, np.int64), np.zeros(0)
-    n = int(T.max()) + 1
-    keys = np.empty(3 * F, np.int64)
-    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        a, b = T[:, i].astype(np.int64), T[:, j].astype(np.int64)
-        keys[k * F:(k + 1) * F] = np.minimum(a, b) * n + np.maximum(a, b)
-    order = np.argsort(keys, kind="stable")
-    keys = keys[order]
-    same = keys[1:] == keys[:-1]
-    del keys
-    face = np.remainder(order, F, out=order)
-    u, v = face[:-1][same].astype(np.int32), face[1:][same].astype(np.int32)  # faces sharing an edge, chained
-    del face, order, same
-    graph = coo_matrix((np.ones(len(u), np.int8), (u, v)), shape=(F, F)).tocsr()
-    del u, v
-    _, labels = connected_components(graph, directed=False)
-    del graph
-    return labels.astype(np.int64), np.bincount(labels, weights=face_areas(V, T, block))
 
 
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:

@@ -26,6 +26,7 @@ import logging
 
 import numpy as np
 
+from .geometry import triangle_components
 from .support import axes_point, find_support, remove_support
 
 log = logging.getLogger("photorecon")
@@ -107,15 +108,11 @@ def framed_fraction(m, keep: np.ndarray, views, point: np.ndarray, margin: float
     """Test 4: of the Open3D mesh ``m``'s triangles where ``keep`` (the surface above the support), the connected
     part nearest to ``point``: the fraction of its area whose triangle centres lie inside the image (``margin``
     of its size clear at each edge) of every camera in ``views`` that sees ``point``."""
-    import open3d as o3d
-
     V = np.asarray(m.vertices)
     T = np.asarray(m.triangles)[keep]
     if not len(T):
         return 0.0
-    sub = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(T))
-    labels, _, _ = sub.cluster_connected_triangles()
-    labels = np.asarray(labels)
+    labels = triangle_components(V, T)[0]
     tri = V[T]
     centres = tri.mean(1)
     nearest = int(np.argmin(np.linalg.norm(centres - point, axis=1)))

@@ -7,7 +7,7 @@ import logging
 import numpy as np
 
 from ..errors import BadArgumentError
-from .geometry import face_areas, face_centres, face_cross
+from .geometry import face_areas, face_centres, face_cross, triangle_components
 
 log = logging.getLogger("photorecon")
 
@@ -182,8 +182,6 @@ def _support_rims(m, n: np.ndarray, h: np.ndarray, below: np.ndarray, max_height
     on the side the support's own flat triangles face), lie less than ``max_height`` above the plane (``h``:
     their heights) and are connected through such triangles to the part ``below`` the cut. An object's sides and
     underside do not face up, so the growth stops at its foot."""
-    import open3d as o3d
-
     T = np.asarray(m.triangles)
     V = np.asarray(m.vertices)
     fn = face_cross(V, T)
@@ -197,8 +195,7 @@ def _support_rims(m, n: np.ndarray, h: np.ndarray, below: np.ndarray, max_height
     idx = np.flatnonzero(cand)
     if not len(idx):
         return np.zeros(len(T), bool)
-    sub = o3d.geometry.TriangleMesh(m.vertices, o3d.utility.Vector3iVector(T[idx]))
-    labels = np.asarray(sub.cluster_connected_triangles()[0])
+    labels = triangle_components(V, T[idx])[0]
     seeds = np.unique(labels[below[idx]])
     out = np.zeros(len(T), bool)
     out[idx[np.isin(labels, seeds)]] = True
