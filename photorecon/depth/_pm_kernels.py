@@ -635,6 +635,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                 cd[nc] = d
                 cn[nc, 0], cn[nc, 1], cn[nc, 2] = n0, n1, n2
                 nc += 1
+            allowed &= all_views  # bits of sources this round does not match (fewer sources) say nothing
             if allowed == 0:
                 allowed = all_views
             bi = -1
