@@ -31,9 +31,9 @@ def test_sfm_twice_from_scratch_gives_the_same_cameras(ring_small, tmp_path):
     from photorecon.poses.sfm import SfMConfig, run_sfm
 
     runs = []
-    for name in ("a", "b"):
+    for name in ("a", "b"):  # one thread: with more, the mapper is not repeatable every time (docs/troubleshooting.md)
         out = tmp_path / name
-        res = run_sfm(ring_small / "images", out, SfMConfig(threads=-1))
+        res = run_sfm(ring_small / "images", out, SfMConfig(threads=1))
         assert len(res.registered) == 16
         runs.append(out)
     a, b = (read_colmap_text(r / "sparse" / "0") for r in runs)
