@@ -31,6 +31,7 @@ N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth
 # pm_pass's per-row counts: pixels computed, pixels left as converged, NCC evaluations (candidates, refinement)
 COUNT_PIXELS, COUNT_SKIPPED, COUNT_CANDIDATE, COUNT_REFINE = 0, 1, 2, 3
 N_COUNTS = 4
+MAX_CARRIED_SOURCES = 31  # pm_pass' view selection bits per pixel: one int32
 
 
 def sampling_regions(strip: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -563,7 +564,8 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
     NR = rdy.shape[0]
     NC = 1 + NR
     inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
-    use_views = views.shape[0] == H and views.shape[1] == W and S <= 31
+    use_views = views.shape[0] == H and views.shape[1] == W and S <= MAX_CARRIED_SOURCES
+    carry = use_views and views_read
     all_views = (1 << S) - 1
     inv2conf = 1.0 / (2.0 * sigma_conf * sigma_conf)
     for y in prange(H):
@@ -603,7 +605,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
             cd[0] = depth[y, x]
             cn[0, 0], cn[0, 1], cn[0, 2] = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
             nc = 1
-            allowed = views[y, x] if use_views and views_read else 0
+            allowed = views[y, x] if carry else 0
             for reg in range(NR):
                 best = 1e30
                 by = -1
@@ -619,7 +621,7 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
                         bx = xx
                 if by < 0:
                     continue
-                if use_views and views_read:
+                if carry:
                     allowed |= views[by, bx]
                 dq = depth[by, bx]
                 n0, n1, n2 = normal[by, bx, 0], normal[by, bx, 1], normal[by, bx, 2]

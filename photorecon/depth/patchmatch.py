@@ -240,8 +240,8 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     if active is not None:
         depth[~active] = -1.0
     work = np.zeros((H, k.N_COUNTS), np.int64)
-    if views is None or views.shape != (H, W) or len(sources) > 31:
-        views, views_read = np.zeros((1, 1), np.int32), False
+    if views is None:
+        views = np.zeros((1, 1), np.int32)  # none: the kernel neither reads nor writes bits
     for it in range(iterations):
         work[:] = 0
         tau_good = 0.8 * np.exp(-(it ** 2) / 90.0)
@@ -336,7 +336,8 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
     src_names = round_sources(job, r, by_name, cfg)
     srcs = [level_view(by_name[s].view, lvl) for s in src_names]
     init = c_init = geo = prior = None
-    views = np.zeros((ref.intrinsics.height, ref.intrinsics.width), np.int32) if cfg.pm_carry_views else None
+    carry = cfg.pm_carry_views and len(src_names) <= _kernels().MAX_CARRIED_SOURCES
+    views = np.zeros((ref.intrinsics.height, ref.intrinsics.width), np.int32) if carry else None
     active = mask(name, ref) if mask is not None else None
     if not first:
         prev_lvl = rounds[r - 1][0]
@@ -355,7 +356,7 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
             init = (d, n)
         if views is not None:
             try:
-                views = _nearest(load(name, r - 1, "views"), views.shape)
+                views = cv2.resize(load(name, r - 1, "views"), ref.intrinsics.size, interpolation=cv2.INTER_NEAREST)
             except (KeyError, OSError):  # a round written without them: every source, this round
                 pass
         if cfg.planar_prior:
@@ -372,15 +373,6 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
         skip_consistent=cfg.pm_skip_consistent if r == final_round else 0,
         active=active, select_current=not first and cfg.pm_fine_views == "current", views=views, views_read=not first)
     return depth, normal, cost, ref, views
-
-
-def _nearest(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``a`` resampled to ``shape`` by taking each pixel centre's nearest pixel (as ``upsample_planes``)."""
-    if a.shape == shape:
-        return np.array(a)
-    yi = np.minimum(((np.arange(shape[0]) + 0.5) * a.shape[0] / shape[0]).astype(np.intp), a.shape[0] - 1)
-    xi = np.minimum(((np.arange(shape[1]) + 0.5) * a.shape[1] / shape[1]).astype(np.intp), a.shape[1] - 1)
-    return np.ascontiguousarray(a[yi[:, None], xi[None, :]])
 
 
 def pruned_active(depth: np.ndarray, cost: np.ndarray, max_cost: float, ref: View, grow: int = 2) -> np.ndarray:

@@ -26,7 +26,7 @@ import logging
 
 import numpy as np
 
-from .geometry import triangle_components
+from .geometry import face_areas, face_centres, triangle_components
 from .support import axes_point, find_support, remove_support
 
 log = logging.getLogger("photorecon")
@@ -113,11 +113,10 @@ def framed_fraction(m, keep: np.ndarray, views, point: np.ndarray, margin: float
     if not len(T):
         return 0.0
     labels = triangle_components(V, T)[0]
-    tri = V[T]
-    centres = tri.mean(1)
+    centres = face_centres(V, T)
     nearest = int(np.argmin(np.linalg.norm(centres - point, axis=1)))
     part = labels == labels[nearest]
-    area = 0.5 * np.linalg.norm(np.cross(tri[part, 1] - tri[part, 0], tri[part, 2] - tri[part, 0]), axis=1)
+    area = face_areas(V, T[part])
     c = centres[part]
     if len(c) > n_samples:
         pick = np.random.default_rng(seed).choice(len(c), n_samples, replace=False)
