@@ -1,5 +1,6 @@
 """Mesh: the fused mesh in, the cleaned mesh and its files out.
 
+- ``geometry``: per-triangle quantities (edge cross products, areas, centres) the other modules share.
 - ``clean``: floaters and small components removed, simplification to a face budget, hole filling
   (``CleanConfig``, ``clean``); the Open3D conversions.
 - ``support``: for object captures, the plane the object stands on and the support removed.
@@ -11,8 +12,8 @@
 In-memory meshes are trimesh ``Trimesh`` with ``process=False``: geometry is never rewritten behind the
 caller's back.
 """
-from .clean import (CleanConfig, boundary_edges, clean, clean_open3d, edge_use_counts, face_areas, face_centres,
-                    face_cross, fill_holes, floater_mask, from_open3d,
+from .geometry import face_areas, face_centres, face_cross
+from .clean import (CleanConfig, boundary_edges, clean, clean_open3d, edge_use_counts, fill_holes, floater_mask, from_open3d,
                     harmonic_fill, log, raycasting_scene, simplify, to_open3d, triangle_components, _linked,
                     _vertex_colors, _weighted_percentile)
 from .export import MESH_FORMATS, MESH_SUFFIXES, export, load_mesh, parse_formats

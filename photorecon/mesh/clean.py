@@ -16,6 +16,8 @@ import trimesh
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
 from ..io.atomic import atomic_path
 from ..fields import check_config
+from .geometry import face_areas, face_centres, face_cross
+from .scene import detect_and_remove
 
 log = logging.getLogger("photorecon")
 
@@ -121,8 +123,6 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
         raise BadArgumentError(f"scene: expected auto, object or open, got {mode!r}")
     scene = {"mode": "open", "detected": "open", "reason": "--scene open", "support_removed": None}
     if mode != "open" and len(m.triangles):
-        from .scene import detect_and_remove
-
         scene = detect_and_remove(m, cameras, metadata.get("voxel_size"), cfg.object_cut, mode)
     support = scene["support_removed"]
     if len(m.triangles) and min_component > 0:
@@ -149,33 +149,6 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
         out = from_open3d(to_open3d(out).simplify_vertex_clustering(cfg.cluster_voxel))
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
         out = simplify(out, cfg.target_faces)
-    return out
-
-
-def face_cross(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarray:
-    """Per triangle of (V, T): the cross product of its edges (v1 - v0) x (v2 - v0) (F, 3), twice its area times
-    its unit normal; computed ``block`` triangles at a time (no (F, 3, 3) corner array)."""
-    out = np.empty((len(T), 3), np.result_type(V.dtype, np.float32))
-    for s in range(0, len(T), block):
-        t = V[T[s:s + block]]
-        out[s:s + block] = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    return out
-
-
-def face_areas(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarray:
-    """Per triangle of (V, T): its area (F,), ``block`` triangles at a time."""
-    out = np.empty(len(T), np.result_type(V.dtype, np.float32))
-    for s in range(0, len(T), block):
-        t = V[T[s:s + block]]
-        out[s:s + block] = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-    return out
-
-
-def face_centres(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarray:
-    """Per triangle of (V, T): the mean of its corners (F, 3), ``block`` triangles at a time."""
-    out = np.empty((len(T), 3), np.result_type(V.dtype, np.float32))
-    for s in range(0, len(T), block):
-        out[s:s + block] = V[T[s:s + block]].mean(1)
     return out
 
 

@@ -26,6 +26,8 @@ import logging
 
 import numpy as np
 
+from .support import axes_point, find_support, remove_support
+
 log = logging.getLogger("photorecon")
 
 MIN_SEEING = 0.8  # fraction of the cameras that must have the look-at point in front of them and in their image
@@ -41,8 +43,6 @@ def _views(cameras) -> list:
 def look_at_point(views) -> np.ndarray | None:
     """The point nearest (least squares) to every camera's optical axis; None with fewer than 3 views or when
     the axes are nearly parallel (the smallest eigenvalue of the normal matrix below 5% of the largest)."""
-    from .support import axes_point
-
     return axes_point(views, min_views=3)
 
 
@@ -142,8 +142,6 @@ def detect_and_remove(m, cameras, voxel: float | None, cut: float, mode: str) ->
 
 def _decide(m, cameras, voxel: float | None, cut: float, mode: str) -> dict:
     """``detect_and_remove`` without its log line."""
-    from .support import find_support, remove_support
-
     info: dict = {"mode": mode}
     if mode == "object":
         support = remove_support(m, cameras, voxel, cut, quiet=True)

@@ -7,6 +7,7 @@ import logging
 import numpy as np
 
 from ..errors import BadArgumentError
+from .geometry import face_areas, face_centres, face_cross
 
 log = logging.getLogger("photorecon")
 
@@ -137,8 +138,6 @@ def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_sam
     its centre lies below the cut; or None when there is no such plane. Changes nothing."""
     if cameras is None or not len(cameras):
         raise BadArgumentError("--object needs the cameras (to tell which side of the table they are on)")
-    from .clean import face_areas, face_centres
-
     V = np.asarray(m.vertices)
     T = np.asarray(m.triangles)
     if not len(T):
@@ -185,8 +184,6 @@ def _support_rims(m, n: np.ndarray, h: np.ndarray, below: np.ndarray, max_height
     underside do not face up, so the growth stops at its foot."""
     import open3d as o3d
 
-    from .clean import face_cross
-
     T = np.asarray(m.triangles)
     V = np.asarray(m.vertices)
     fn = face_cross(V, T)
@@ -223,8 +220,6 @@ def remove_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_s
                      "side and the object on theirs); nothing removed")
         return None
     n, c, cut, drop = found
-    from .clean import face_areas
-
     area = face_areas(np.asarray(m.vertices), np.asarray(m.triangles))
     removed = float(area[drop].sum())
     total = float(area.sum())
