@@ -432,8 +432,8 @@ def filled_area(mesh: trimesh.Trimesh) -> float:
 
 
 def rim_normals(V: np.ndarray, F: np.ndarray, vertices: np.ndarray) -> np.ndarray:
-    """Per vertex of ``vertices``: the sum of the (area-weighted) normals of the faces around it, (k, 3), as the
-    faces are wound."""
+    """Per vertex of ``vertices``: the unit normal of the faces around it (their area-weighted mean), (k, 3), as
+    the faces are wound."""
     from .geometry import face_cross
 
     n = len(V)
@@ -444,16 +444,18 @@ def rim_normals(V: np.ndarray, F: np.ndarray, vertices: np.ndarray) -> np.ndarra
     acc = np.zeros((n, 3))
     for k in range(3):
         np.add.at(acc, F[sel, k], fc)
-    return acc[vertices]
+    out = acc[vertices]
+    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
 
 
 def split_notches(V: np.ndarray, loop: np.ndarray, normals: np.ndarray, max_radius: float,
-                  max_offplane: float = 0.5, rounds: int = 8) -> tuple[list[np.ndarray], np.ndarray]:
+                  max_offplane: float = 0.5, min_agree: float = 0.0, rounds: int = 8) -> tuple[list[np.ndarray], np.ndarray]:
     """The notches of a hole too big to fill whole: parts of its rim that leave and come back within
     ``max_radius`` of where they left, around a bay of the hole (the rim on one side, a chord across the
     hole on the other: the enclosed area is hole, wound as a hole is, not a peninsula of surface), that fit
-    in a sphere of ``max_radius`` and lie near a plane (``max_offplane``). ``normals`` (len(loop), 3): the
-    surface's normal at each rim vertex (``rim_normals``). Returns (the notches, as loops to fill; what is
+    in a sphere of ``max_radius``, lie near a plane (``max_offplane``) and along which the surface faces like
+    that plane (``min_agree``: the mean |cos| of the angle). ``normals`` (len(loop), 3): the surface's unit
+    normal at each rim vertex (``rim_normals``). Returns (the notches, as loops to fill; what is
     left of the hole, its rim cut short by the chords)."""
     from scipy.spatial import cKDTree
 
@@ -481,7 +483,7 @@ def split_notches(V: np.ndarray, loop: np.ndarray, normals: np.ndarray, max_radi
             break
         order = np.argsort(-(arc - d), kind="stable")
         taken, busy = _pick_notches(np.ascontiguousarray(P), np.ascontiguousarray(nrm), i[order], j[order],
-                                    float(max_radius), float(max_offplane))
+                                    float(max_radius), float(max_offplane), float(min_agree))
         if not len(taken):
             if r % 2:
                 break
@@ -493,9 +495,10 @@ def split_notches(V: np.ndarray, loop: np.ndarray, normals: np.ndarray, max_radi
 
 
 @njit(cache=True)
-def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane):
+def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane, min_agree):
     """``split_notches``' choice: the candidate chords (ci < cj, best first) taken greedily when their notch
-    overlaps none taken before, fits in ``max_radius``, is wound as a hole and lies near a plane. Returns
+    overlaps none taken before, fits in ``max_radius``, is wound as a hole, lies near a plane and the surface
+    along it faces like that plane (``nrm``: unit normals; their mean |cos| to it at least ``min_agree``). Returns
     ((k, 2) taken, per rim vertex True strictly inside a taken notch)."""
     n = P.shape[0]
     busy = np.zeros(n, np.bool_)
@@ -542,6 +545,11 @@ def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane):
             off = max(off, abs(((P[k] - c) * pn).sum()))
         if off > max_offplane * max(rad, 1e-300):
             continue
+        agree = 0.0
+        for k in range(a, b + 1):
+            agree += abs((nrm[k] * pn).sum())
+        if agree < min_agree * m:
+            continue
         out[t, 0], out[t, 1] = a, b
         t += 1
         for k in range(a + 1, b):
@@ -552,38 +560,48 @@ def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane):
 
 
 def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: float = 0.5,
-                     notches: bool = True) -> tuple[trimesh.Trimesh, dict]:
-    """Fill the holes whose rim fits in a sphere of ``max_radius`` (scene units) and lies near a plane (its
-    farthest vertex off the best-fit plane at most ``max_offplane`` x that radius: a hole in a surface, not a
-    gap between two sides); of a bigger hole, its notches (``split_notches``) and then what is left when that
-    fits. Returns the mesh and the facts: ``holes`` (rims found), ``filled_holes`` (whole holes),
-    ``filled_notches``, ``filled_faces``."""
+                     max_angle: float = 90.0, notches: bool = True) -> tuple[trimesh.Trimesh, dict]:
+    """Fill the holes whose rim fits in a sphere of ``max_radius`` (scene units), lies near a plane (its farthest
+    vertex off the best-fit plane at most ``max_offplane`` x that radius: a hole in a surface, not a gap between
+    two sides) and along which the surface faces like that plane (the mean |cos| of the angle between the
+    surface's normals at the rim and the plane's at least cos ``max_angle`` degrees: the surface around agrees,
+    not a curled fringe); of a bigger hole, its notches (``split_notches``) under the same tests, and then what
+    is left of it when that passes them. Returns the mesh and the facts: ``holes`` (rims found),
+    ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``."""
     loops = boundary_loops(mesh.faces, len(mesh.vertices))
     info = {"holes": len(loops), "filled_holes": 0, "filled_notches": 0, "filled_faces": 0}
     if not loops:
         out, _ = fill_loops(mesh, [])
         return out, info
     V = np.asarray(mesh.vertices, np.float64)
-    st = hole_stats(V, loops)
-    ok = (st["radius"] <= max_radius) & (st["offplane"] <= max_offplane)
-    fill = [loops[i] for i in np.flatnonzero(ok)]
-    n_notches = 0
-    big = [loops[i] for i in np.flatnonzero(~ok)]
-    if notches and big:
-        allv = np.concatenate(big)
-        nv = rim_normals(V, np.asarray(mesh.faces, np.int64), allv)
-        at = 0
-        for lp in big:
-            pieces, rest = split_notches(V, lp, nv[at:at + len(lp)], max_radius, max_offplane)
-            at += len(lp)
-            fill += pieces
-            n_notches += len(pieces)
-            if pieces and len(rest) >= 3:
-                rs = hole_stats(V, [rest])
-                if rs["radius"][0] <= max_radius and rs["offplane"][0] <= max_offplane:
-                    fill.append(rest)
+    F = np.asarray(mesh.faces, np.int64)
+    min_agree = float(np.cos(np.radians(max_angle)))
+    allv = np.concatenate(loops)
+    nv = rim_normals(V, F, allv)
+    starts = np.r_[0, np.cumsum([len(lp) for lp in loops])]
+
+    def passes(lp, u):
+        st = hole_stats(V, [lp])
+        agree = float(np.abs(u @ st["normal"][0]).mean())
+        return st["radius"][0] <= max_radius and st["offplane"][0] <= max_offplane and agree >= min_agree
+
+    fill, n_whole, n_notches = [], 0, 0
+    for j, lp in enumerate(loops):
+        u = nv[starts[j]:starts[j + 1]]
+        if passes(lp, u):
+            fill.append(lp)
+            n_whole += 1
+            continue
+        if not notches:
+            continue
+        pieces, rest = split_notches(V, lp, u, max_radius, max_offplane, min_agree)
+        fill += pieces
+        n_notches += len(pieces)
+        if pieces and len(rest) >= 3:
+            if passes(rest, rim_normals(V, F, rest)):
+                fill.append(rest)
     out, nf = fill_loops(mesh, fill)
-    info.update(filled_holes=int(ok.sum()), filled_notches=n_notches, filled_faces=int(nf))
+    info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf))
     return out, info
 
 
@@ -647,3 +665,26 @@ def _closed_components(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     if not keep.any():
         return mesh
     return _subset(mesh, keep)
+
+
+def support_floor(metadata: dict):
+    """The support plane (n, c) of an object capture from a cleaned mesh's ``metadata`` (``support_normal``,
+    ``support_offset``), n towards the object; None without one."""
+    nrm, off = metadata.get("support_normal"), metadata.get("support_offset")
+    if not nrm or off is None:
+        return None
+    n = np.array([float(x) for x in str(nrm).split(",")])
+    return n / np.linalg.norm(n), float(off)
+
+
+def closed_companion(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, dict]:
+    """The watertight companion of an object's cleaned mesh (``close_mesh``; the patch over the support side
+    kept above the support plane, when the mesh's metadata holds one) and its facts: ``watertight``,
+    ``filled_area`` (every patch: the cleaning's and this one's), ``faces``, ``vertices``."""
+    closed = close_mesh(mesh, floor=support_floor(mesh.metadata))
+    info = {"watertight": bool(closed.is_watertight), "filled_area": filled_area(closed),
+            "vertices": len(closed.vertices), "faces": len(closed.faces)}
+    if not info["watertight"]:
+        log.warning("closed mesh: %d boundary edges left after filling every hole (edges used by more than two "
+                    "faces, or rims that cross themselves); written anyway", len(boundary_directed(closed.faces)))
+    return closed, info
