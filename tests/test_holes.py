@@ -112,3 +112,43 @@ def test_clean_fills_a_tsdf_meshs_small_holes_only():
     assert out.metadata["fill"]["filled_holes"] == 2 and out.metadata["fill"]["holes"] == 3
     assert boundary_length(out) == pytest.approx(_rim_length(holed, BIG[0]), rel=1e-6)
     assert filled_area(out) == pytest.approx(sum(np.pi * r ** 2 for _, r in SMALL), rel=0.15)
+
+
+def _ply_filled(path):
+    """(mesh, per-vertex filled, per-face filled) as a PLY reader sees the file."""
+    m = trimesh.load(path, process=False)
+    raw = m.metadata["_ply_raw"]
+    return m, np.asarray(raw["vertex"]["data"]["filled"]), np.asarray(raw["face"]["data"]["filled"])
+
+
+def _open_length(m):
+    e, counts = np.unique(np.sort(np.asarray(m.edges), axis=1), axis=0, return_counts=True)
+    e = e[counts == 1]
+    return float(np.linalg.norm(m.vertices[e[:, 0]] - m.vertices[e[:, 1]], axis=1).sum())
+
+
+def test_reconstruct_reports_the_filling_and_writes_the_closed_companion_for_an_object(blob_small, tmp_path):
+    import json
+
+    from photorecon.cli import main
+
+    args = ["-q", "reconstruct", str(blob_small / "images"), "--poses", str(blob_small / "transforms.json"),
+            "--depth", str(blob_small / "depth")]
+    out = tmp_path / "object"
+    assert main(args + ["-o", str(out), "--object"]) == 0
+    rep = json.loads((out / "report.json").read_text())["mesh"]
+    m, vf, ff = _ply_filled(out / "mesh.ply")
+    assert rep["boundary_length"] == pytest.approx(_open_length(m), rel=1e-6, abs=1e-9)
+    assert rep["filled_area"] == pytest.approx(float(m.area_faces[ff > 0].sum()), rel=1e-6, abs=1e-12)
+    assert rep["fill"]["fill_radius"] > 0 and rep["fill"]["holes"] >= rep["fill"]["filled_holes"]
+    c, cvf, cff = _ply_filled(out / "mesh_closed.ply")
+    assert c.is_watertight and rep["closed"]["watertight"] and rep["closed"]["file"] == "mesh_closed.ply"
+    assert rep["closed"]["filled_area"] == pytest.approx(float(c.area_faces[cff > 0].sum()), rel=1e-6, abs=1e-12)
+    assert rep["closed"]["filled_area"] >= rep["filled_area"] - 1e-12
+    assert (out / "mesh_closed.glb").is_file()
+    # the closed companion keeps the open mesh's surface: its vertices come first, unchanged
+    assert np.allclose(np.asarray(c.vertices)[:len(m.vertices)], np.asarray(m.vertices), atol=1e-6)
+    # the same photos as an open scene (--closed off): no companion, and none left from the run before
+    assert main(args + ["-o", str(out), "--object", "--closed", "off"]) == 0
+    assert json.loads((out / "report.json").read_text())["mesh"]["closed"] is None
+    assert not (out / "mesh_closed.ply").exists() and not (out / "mesh_closed.glb").exists()
