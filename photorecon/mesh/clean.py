@@ -154,11 +154,17 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
     out = from_open3d(m)
     del m  # the Open3D copy
     hole = fill_radius(cfg, metadata.get("voxel_size"), scene["detected"] == "object")
-    fill = {"fill_radius": hole, "holes": None, "filled_holes": 0, "filled_notches": 0, "filled_faces": 0}
+    fill = {"fill_radius": hole, "holes": None, "filled_holes": 0, "filled_notches": 0, "filled_faces": 0,
+            "kept_open": 0}
     if hole > 0:
         from .holes import fill_small_holes
 
-        out, found = fill_small_holes(out, hole, cfg.fill_max_offplane, cfg.fill_max_angle)
+        from .holes import at_support
+
+        # an object's opening at its support stays open here (mesh_closed closes it)
+        margin = 2 * float(metadata.get("voxel_size") or 0.0) or 0.01 * hole
+        keep_open = at_support(np.asarray(out.vertices), support, margin)
+        out, found = fill_small_holes(out, hole, cfg.fill_max_offplane, cfg.fill_max_angle, keep_open=keep_open)
         fill.update(found)
         log.info("cleaning: %d holes, %d filled whole and %d notches of bigger ones (up to %.3g in radius): %d "
                  "faces added", found["holes"], found["filled_holes"], found["filled_notches"], hole,

@@ -560,16 +560,17 @@ def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane, min_agree):
 
 
 def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: float = 0.5,
-                     max_angle: float = 90.0, notches: bool = True) -> tuple[trimesh.Trimesh, dict]:
+                     max_angle: float = 90.0, notches: bool = True, keep_open=None) -> tuple[trimesh.Trimesh, dict]:
     """Fill the holes whose rim fits in a sphere of ``max_radius`` (scene units), lies near a plane (its farthest
     vertex off the best-fit plane at most ``max_offplane`` x that radius: a hole in a surface, not a gap between
     two sides) and along which the surface faces like that plane (the mean |cos| of the angle between the
     surface's normals at the rim and the plane's at least cos ``max_angle`` degrees: the surface around agrees,
     not a curled fringe); of a bigger hole, its notches (``split_notches``) under the same tests, and then what
-    is left of it when that passes them. Returns the mesh and the facts: ``holes`` (rims found),
-    ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``."""
+    is left of it when that passes them. ``keep_open(vertices)``: True for a rim to leave as it is, notches and
+    all (an object's opening at its support, for ``close_mesh``). Returns the mesh and the facts: ``holes``
+    (rims found), ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``, ``kept_open``."""
     loops = boundary_loops(mesh.faces, len(mesh.vertices))
-    info = {"holes": len(loops), "filled_holes": 0, "filled_notches": 0, "filled_faces": 0}
+    info = {"holes": len(loops), "filled_holes": 0, "filled_notches": 0, "filled_faces": 0, "kept_open": 0}
     if not loops:
         out, _ = fill_loops(mesh, [])
         return out, info
@@ -585,8 +586,11 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
         agree = float(np.abs(u @ st["normal"][0]).mean())
         return st["radius"][0] <= max_radius and st["offplane"][0] <= max_offplane and agree >= min_agree
 
-    fill, n_whole, n_notches = [], 0, 0
+    fill, n_whole, n_notches, n_kept = [], 0, 0, 0
     for j, lp in enumerate(loops):
+        if keep_open is not None and keep_open(lp):
+            n_kept += 1
+            continue
         u = nv[starts[j]:starts[j + 1]]
         if passes(lp, u):
             fill.append(lp)
@@ -601,7 +605,7 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
             if passes(rest, rim_normals(V, F, rest)):
                 fill.append(rest)
     out, nf = fill_loops(mesh, fill)
-    info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf))
+    info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf), kept_open=n_kept)
     return out, info
 
 
@@ -665,6 +669,22 @@ def _closed_components(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     if not keep.any():
         return mesh
     return _subset(mesh, keep)
+
+
+def at_support(V: np.ndarray, support: dict | None, margin: float):
+    """For an object whose support was cut away (``support``: ``support_normal``, ``support_offset``,
+    ``support_cut``): a test of a rim (vertex indices into ``V``) that is True when at least 3 of its vertices lie
+    within ``margin`` above the cut: the opening the cut left, or a hole that reaches it. None without one."""
+    floor = support_floor(support or {})
+    if floor is None:
+        return None
+    n, c = floor
+    top = float(support.get("support_cut", 0.0)) + margin
+
+    def test(loop):
+        return int(((V[loop] @ n - c) <= top).sum()) >= 3
+
+    return test
 
 
 def support_floor(metadata: dict):
