@@ -131,12 +131,12 @@ def hole_stats(V: np.ndarray, loops: list[np.ndarray]) -> dict:
 
 
 @njit(cache=True)
-def _ear_clip(xy, P3, chords):
+def _ear_clip(xy, P3, chords, max_tries=48):
     """Ear clipping of the simple polygon ``xy`` (n, 2) (3D corners ``P3`` (n, 3)): at each step the ear with the
     shortest diagonal (3D) among those that are convex and hold no other corner; a diagonal whose local key
     (i * n + j, i < j) is in the sorted ``chords`` (an existing edge of the mesh) is never cut. Without such an
-    ear (a rim whose projection folds over itself) the convex corner, else any corner, with the shortest allowed
-    diagonal. Returns (n - 2, 3) local corner indices, wound like the polygon."""
+    ear among the ``max_tries`` shortest diagonals (a rim whose projection folds over itself) the convex corner,
+    else any corner, with the shortest allowed diagonal among them. Returns (n - 2, 3) local corner indices, wound like the polygon."""
     n = xy.shape[0]
     out = np.empty((max(n - 2, 0), 3), np.int64)
     idx = np.arange(n)
@@ -154,7 +154,7 @@ def _ear_clip(xy, P3, chords):
             d[k] = np.sqrt(((P3[a] - P3[c]) ** 2).sum())
         order = np.argsort(d)
         pick, fallback_convex, fallback_any = -1, -1, -1
-        for q in range(m):
+        for q in range(min(m, max_tries)):  # a long rim whose projection folds: bounded work per ear
             k = order[q]
             a, b, c = idx[(k - 1) % m], idx[k], idx[(k + 1) % m]
             lo, hi = min(a, c), max(a, c)
