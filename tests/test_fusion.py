@@ -640,7 +640,7 @@ def test_clean_fills_holes_as_fill_small_holes_on_the_cleaned_mesh():
     holed = trimesh.Trimesh(s.vertices, s.faces[keep], vertex_colors=colors, process=False)
     holed.metadata["voxel_size"] = 0.01
     filled = clean(holed, CleanConfig())
-    expected, _ = fill_small_holes(clean(holed, CleanConfig(fill_holes_voxels=0)), 15 * 0.01, 0.5, 30.0)
+    expected, _ = fill_small_holes(clean(holed, CleanConfig(fill_holes_voxels=0)), 10 * 0.01, 0.5, 60.0)
     assert len(filled.faces) == len(holed.faces) + 3
     assert np.array_equal(filled.vertices, expected.vertices) and np.array_equal(filled.faces, expected.faces)
     assert np.array_equal(filled.visual.vertex_colors, expected.visual.vertex_colors)

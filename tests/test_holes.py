@@ -97,8 +97,9 @@ def test_closed_companion_is_watertight_and_stays_above_the_support():
 
 def test_fill_radius_defaults():
     cfg = CleanConfig()
-    assert fill_radius(cfg, 0.01, False) == pytest.approx(0.15)  # 15 voxels
-    assert fill_radius(cfg, 0.01, True) == pytest.approx(0.30)  # objects: 30 voxels
+    assert fill_radius(cfg, 0.01, False) == pytest.approx(0.10)  # 10 voxels
+    assert fill_radius(cfg, 0.01, True) == pytest.approx(0.10)  # objects: the same unless set apart
+    assert fill_radius(CleanConfig(fill_object_voxels=30), 0.01, True) == pytest.approx(0.30)
     assert fill_radius(cfg, None, True) == 0.0  # no voxel: not a TSDF mesh, no default filling
     assert fill_radius(CleanConfig(fill_holes=0.05), None, False) == 0.05
     assert fill_radius(CleanConfig(fill_holes_voxels=0), 0.01, True) == 0.0

@@ -28,6 +28,8 @@ from .geometry import face_areas
 
 log = logging.getLogger("photorecon")
 
+MAX_FILL_FACES = 20_000  # about the most faces a patch over one hole gets (fill_loops' max_faces)
+
 
 def _edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
     a, b = a.astype(np.int64), b.astype(np.int64)
@@ -224,14 +226,16 @@ def _triangulate(V: np.ndarray, loop: np.ndarray, normal: np.ndarray, edge_set: 
     return loop[_ear_clip(xy, P, chords)]
 
 
-def _refine(V: np.ndarray, patch: np.ndarray, locked: np.ndarray, target: float, max_iter: int = 12):
-    """Split the patch faces' edges longer than 4/3 ``target`` at their midpoints (red-green: a face with one,
-    two or three split edges becomes two, three or four), never an edge whose key is in ``locked`` (the rims).
+def _refine(V: np.ndarray, patch: np.ndarray, locked: np.ndarray, target, max_iter: int = 12):
+    """Split the patch faces' edges longer than 4/3 ``target`` (a length, or one per face of ``patch``: the
+    faces of one hole share theirs) at their midpoints (red-green: a face with one, two or three split edges
+    becomes two, three or four), never an edge whose key is in ``locked`` (the rims).
     Returns (vertices with the new ones appended, faces)."""
     V = np.asarray(V, np.float64)
     n0 = len(V)
     new_v = []
     F = np.asarray(patch, np.int64)
+    tgt = np.broadcast_to(np.asarray(target, np.float64), (len(F),)).copy()
     total = n0
     for _ in range(max_iter):
         if not len(F):
@@ -241,7 +245,7 @@ def _refine(V: np.ndarray, patch: np.ndarray, locked: np.ndarray, target: float,
         big = total + 1
         keys = np.minimum(e[..., 0], e[..., 1]) * big + np.maximum(e[..., 0], e[..., 1])
         ln = np.linalg.norm(allV[e[..., 0]] - allV[e[..., 1]], axis=2)
-        split = (ln > 4.0 / 3.0 * target) & ~_in_locked(e, locked, n0)
+        split = (ln > 4.0 / 3.0 * tgt[:, None]) & ~_in_locked(e, locked, n0)
         if not split.any():
             break
         uk, inv = np.unique(keys[split], return_inverse=True)
@@ -251,7 +255,8 @@ def _refine(V: np.ndarray, patch: np.ndarray, locked: np.ndarray, target: float,
         mid_idx[split] = total + inv.ravel()
         new_v.append(mids)
         total += len(uk)
-        out = [F[~split.any(1)]]
+        keep = ~split.any(1)
+        out, out_t = [F[keep]], [tgt[keep]]
         ns = split.sum(1)
         for s in range(3):  # one split edge, edge s: (v_s, m_s, v_s+2), (m_s, v_s+1, v_s+2)
             sel = (ns == 1) & split[:, s]
@@ -259,6 +264,7 @@ def _refine(V: np.ndarray, patch: np.ndarray, locked: np.ndarray, target: float,
                 f, m = F[sel], mid_idx[sel, s]
                 v0, v1, v2 = f[:, s], f[:, (s + 1) % 3], f[:, (s + 2) % 3]
                 out += [np.stack([v0, m, v2], 1), np.stack([m, v1, v2], 1)]
+                out_t += [tgt[sel]] * 2
         for s in range(3):  # two split edges: edge s+2 kept; edges s, s+1 split
             sel = (ns == 2) & ~split[:, (s + 2) % 3]
             if sel.any():
@@ -266,12 +272,15 @@ def _refine(V: np.ndarray, patch: np.ndarray, locked: np.ndarray, target: float,
                 v0, v1, v2 = f[:, s], f[:, (s + 1) % 3], f[:, (s + 2) % 3]
                 m0, m1 = mid_idx[sel, s], mid_idx[sel, (s + 1) % 3]
                 out += [np.stack([m0, v1, m1], 1), np.stack([v0, m0, m1], 1), np.stack([v0, m1, v2], 1)]
+                out_t += [tgt[sel]] * 3
         sel = ns == 3
         if sel.any():
             f, m = F[sel], mid_idx[sel]
             out += [np.stack([f[:, 0], m[:, 0], m[:, 2]], 1), np.stack([f[:, 1], m[:, 1], m[:, 0]], 1),
                     np.stack([f[:, 2], m[:, 2], m[:, 1]], 1), m.copy()]
+            out_t += [tgt[sel]] * 4
         F = np.concatenate(out)
+        tgt = np.concatenate(out_t)
     allV = V if not new_v else np.vstack([V] + new_v)
     return allV, F
 
@@ -347,9 +356,11 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
 
 
 def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarray | None = None,
-               target: float | None = None, floor=None) -> tuple[trimesh.Trimesh, int]:
+               target: float | None = None, floor=None, max_faces: int = MAX_FILL_FACES) -> tuple[trimesh.Trimesh, int]:
     """``mesh`` with the holes of ``loops`` (``boundary_loops``) closed: ear-clipped, refined to edges of about
-    ``target`` (default: the median rim edge), faired (``_fair``). The mesh's vertices and faces come first and
+    ``target`` (default: the median rim edge; longer over a hole whose patch would otherwise take more than
+    about ``max_faces`` faces: a patch carries no detail, and an opening as wide as the object, refined to its
+    rim's edges, took most of a million vertices to fair), faired (``_fair``). The mesh's vertices and faces come first and
     unchanged; vertex colours of new vertices diffuse from the rims (``harmonic_fill``). Marks ``filled`` vertex
     and face attributes (kept from ``mesh`` where it has them). Returns (mesh, number of new faces)."""
     V0 = np.asarray(mesh.vertices, np.float64)
@@ -374,10 +385,15 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
     for a, b in e.tolist():
         edge_set.setdefault(a, set()).add(b)
         edge_set.setdefault(b, set()).add(a)
-    patch = np.concatenate([_triangulate(V0, lp, nr, edge_set) for lp, nr in zip(loops, normals)])
+    pieces = [_triangulate(V0, lp, nr, edge_set) for lp, nr in zip(loops, normals)]
+    patch = np.concatenate(pieces)
     rim_e = np.concatenate([np.stack([lp, np.roll(lp, -1)], 1) for lp in loops])
     if target is None:
         target = float(np.median(np.linalg.norm(V0[rim_e[:, 0]] - V0[rim_e[:, 1]], axis=1)))
+    if max_faces > 0:  # red-green splits leave edges of 2/3 to 4/3 target: about 0.4 target^2 a face
+        area = np.array([face_areas(V0, p).sum() for p in pieces])
+        per_hole = np.maximum(target, np.sqrt(area / (0.4 * max_faces)))
+        target = np.repeat(per_hole, [len(p) for p in pieces])
     # every edge of the observed mesh is locked (rims, and any chord the ear clipping could not avoid)
     locked = np.unique(_edge_keys(rim_e[:, 0], rim_e[:, 1], n0))
     V, patch = _refine(V0, patch, locked, target)
@@ -609,18 +625,17 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
     return out, info
 
 
-def close_mesh(mesh: trimesh.Trimesh, floor=None, rounds: int = 3) -> trimesh.Trimesh:
+def close_mesh(mesh: trimesh.Trimesh, floor=None, rounds: int = 4) -> trimesh.Trimesh:
     """A watertight companion of ``mesh``: every hole filled (``fill_loops``, new vertices kept above the
     ``floor`` plane (n, c) when given: an object's support). Edges used by more than two faces lose their extra
     faces first (the ones added last), and components that stay open after ``rounds`` are dropped when a
     closed one remains. ``is_watertight`` tells whether it worked."""
-    out = mesh
+    out = _drop_overused(mesh)
     for _ in range(rounds):
-        out = _drop_overused(out)
         loops = boundary_loops(out.faces, len(out.vertices))
         if not loops:
             break
-        out, _ = fill_loops(out, loops, floor=floor)
+        out = _drop_overused(fill_loops(out, loops, floor=floor)[0])
     if not out.is_watertight:
         out = _closed_components(out)
     return out
@@ -654,7 +669,7 @@ def _subset(mesh: trimesh.Trimesh, keep: np.ndarray) -> trimesh.Trimesh:
 
 def _closed_components(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """The components of ``mesh`` that are closed (every edge used by two faces), when there is one."""
-    from .clean import triangle_components
+    from .geometry import triangle_components
 
     F = np.asarray(mesh.faces, np.int64)
     labels, _ = triangle_components(np.asarray(mesh.vertices), F)
