@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from photorecon.mesh import (CleanConfig, boundary_length, boundary_loops, clean, close_mesh, fill_small_holes,
+from photorecon.mesh import (CleanConfig, boundary_length, boundary_loops, clean, close_mesh, fill_loops,
+                             fill_small_holes,
                              filled_area)
 from photorecon.mesh.clean import fill_radius
 
@@ -106,9 +107,9 @@ def test_fill_radius_defaults():
 
 
 def test_clean_fills_a_tsdf_meshs_small_holes_only():
-    """``clean`` on a mesh with a known voxel: holes up to 15 voxels filled, the big one kept, facts recorded."""
+    """``clean`` on a mesh with a known voxel: holes up to 10 voxels filled, the big one kept, facts recorded."""
     holed = _holed(SMALL + (BIG,))
-    holed.metadata["voxel_size"] = 0.02  # 15 voxels: 0.3
+    holed.metadata["voxel_size"] = 0.03  # 10 voxels: 0.3
     out = clean(holed, CleanConfig(scene="open"))
     assert out.metadata["fill"]["filled_holes"] == 2 and out.metadata["fill"]["holes"] == 3
     assert boundary_length(out) == pytest.approx(_rim_length(holed, BIG[0]), rel=1e-6)
@@ -153,3 +154,20 @@ def test_reconstruct_reports_the_filling_and_writes_the_closed_companion_for_an_
     assert main(args + ["-o", str(out), "--object", "--closed", "off"]) == 0
     assert json.loads((out / "report.json").read_text())["mesh"]["closed"] is None
     assert not (out / "mesh_closed.ply").exists() and not (out / "mesh_closed.glb").exists()
+
+
+def test_fan_closes_a_rim_around_a_new_centre_vertex():
+    """``fill_loops(fan=True)`` (the closed companion's later rounds, for rims whose ear clipping repeated an
+    edge of the mesh): a box's square opening is closed by four faces around one new vertex on the opening's
+    axis, marked filled, and the box is watertight again."""
+    box = trimesh.creation.box()
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    top = np.flatnonzero(box.face_normals[:, 2] > 0.5)  # the two triangles of the top square
+    holed = trimesh.Trimesh(V, np.delete(F, top, axis=0), process=False)
+    loop = boundary_loops(holed.faces, len(holed.vertices))
+    assert len(loop) == 1 and len(loop[0]) == 4
+    out, nf = fill_loops(holed, loop, fan=True)
+    assert nf == 4 and len(out.vertices) == len(V) + 1 and out.is_watertight
+    c = np.asarray(out.vertices[-1])  # on the opening's axis, faired outwards (the sides' slope continued)
+    assert np.allclose(c[:2], 0.0, atol=1e-9) and 0.5 < c[2] < 1.5
+    assert np.asarray(out.vertex_attributes["filled"]).tolist() == [0] * len(V) + [1]

@@ -356,11 +356,13 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
 
 
 def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarray | None = None,
-               target: float | None = None, floor=None, max_faces: int = MAX_FILL_FACES) -> tuple[trimesh.Trimesh, int]:
+               target: float | None = None, floor=None, max_faces: int = MAX_FILL_FACES,
+               fan: bool = False) -> tuple[trimesh.Trimesh, int]:
     """``mesh`` with the holes of ``loops`` (``boundary_loops``) closed: ear-clipped, refined to edges of about
     ``target`` (default: the median rim edge; longer over a hole whose patch would otherwise take more than
     about ``max_faces`` faces: a patch carries no detail, and an opening as wide as the object, refined to its
-    rim's edges, took most of a million vertices to fair), faired (``_fair``). The mesh's vertices and faces come first and
+    rim's edges, took most of a million vertices to fair), faired (``_fair``). ``fan``: each rim joined to a new
+    vertex at its centre instead of ear-clipped (a rim whose every diagonal is already an edge of the mesh). The mesh's vertices and faces come first and
     unchanged; vertex colours of new vertices diffuse from the rims (``harmonic_fill``). Marks ``filled`` vertex
     and face attributes (kept from ``mesh`` where it has them). Returns (mesh, number of new faces)."""
     V0 = np.asarray(mesh.vertices, np.float64)
@@ -385,18 +387,24 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
     for a, b in e.tolist():
         edge_set.setdefault(a, set()).add(b)
         edge_set.setdefault(b, set()).add(a)
-    pieces = [_triangulate(V0, lp, nr, edge_set) for lp, nr in zip(loops, normals)]
+    Vs = V0
+    if fan:  # a new vertex at each rim's centre, the rim joined to it: no diagonal that could repeat an edge
+        centre = n0 + np.arange(len(loops))
+        Vs = np.vstack([V0, [V0[lp].mean(0) for lp in loops]])
+        pieces = [np.stack([lp, np.roll(lp, -1), np.full(len(lp), c)], 1) for lp, c in zip(loops, centre)]
+    else:
+        pieces = [_triangulate(V0, lp, nr, edge_set) for lp, nr in zip(loops, normals)]
     patch = np.concatenate(pieces)
     rim_e = np.concatenate([np.stack([lp, np.roll(lp, -1)], 1) for lp in loops])
     if target is None:
         target = float(np.median(np.linalg.norm(V0[rim_e[:, 0]] - V0[rim_e[:, 1]], axis=1)))
     if max_faces > 0:  # red-green splits leave edges of 2/3 to 4/3 target: about 0.4 target^2 a face
-        area = np.array([face_areas(V0, p).sum() for p in pieces])
+        area = np.array([face_areas(Vs, p).sum() for p in pieces])
         per_hole = np.maximum(target, np.sqrt(area / (0.4 * max_faces)))
         target = np.repeat(per_hole, [len(p) for p in pieces])
     # every edge of the observed mesh is locked (rims, and any chord the ear clipping could not avoid)
-    locked = np.unique(_edge_keys(rim_e[:, 0], rim_e[:, 1], n0))
-    V, patch = _refine(V0, patch, locked, target)
+    locked = np.unique(_edge_keys(rim_e[:, 0], rim_e[:, 1], len(Vs)))
+    V, patch = _refine(Vs, patch, locked, target)
     V = _fair(V, F0, patch, n0, floor)
     V[:n0] = V0  # the observed surface exactly as it was
     colors = _colors(mesh)
@@ -627,15 +635,17 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
 
 def close_mesh(mesh: trimesh.Trimesh, floor=None, rounds: int = 4) -> trimesh.Trimesh:
     """A watertight companion of ``mesh``: every hole filled (``fill_loops``, new vertices kept above the
-    ``floor`` plane (n, c) when given: an object's support). Edges used by more than two faces lose their extra
-    faces first (the ones added last), and components that stay open after ``rounds`` are dropped when a
-    closed one remains. ``is_watertight`` tells whether it worked."""
+    ``floor`` plane (n, c) when given: an object's support; from the second round, rims that reopened are
+    closed by fans around a new centre vertex). Edges used by more than two faces lose their extra
+    faces first (the ones added last), and components that stay open after ``rounds`` are dropped when the
+    closed ones hold most of the surface. ``is_watertight`` tells whether it worked."""
     out = _drop_overused(mesh)
-    for _ in range(rounds):
+    for r in range(rounds):
         loops = boundary_loops(out.faces, len(out.vertices))
         if not loops:
             break
-        out = _drop_overused(fill_loops(out, loops, floor=floor)[0])
+        # from the second round the rims left are those whose ear clipping repeated an edge: fans
+        out = _drop_overused(fill_loops(out, loops, floor=floor, fan=r > 0)[0])
     if not out.is_watertight:
         out = _closed_components(out)
     return out
@@ -667,8 +677,10 @@ def _subset(mesh: trimesh.Trimesh, keep: np.ndarray) -> trimesh.Trimesh:
     return out
 
 
-def _closed_components(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """The components of ``mesh`` that are closed (every edge used by two faces), when there is one."""
+def _closed_components(mesh: trimesh.Trimesh, min_share: float = 0.5) -> trimesh.Trimesh:
+    """The components of ``mesh`` that are closed (every edge used by two faces), when they hold at least
+    ``min_share`` of its area (else ``mesh`` as it is: the object itself stayed open, and a closed crumb is not
+    its companion)."""
     from .geometry import triangle_components
 
     F = np.asarray(mesh.faces, np.int64)
@@ -681,7 +693,8 @@ def _closed_components(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     open_face = np.isin(_edge_keys(fe[:, 0], fe[:, 1], n), _edge_keys(e[:, 0], e[:, 1], n)).reshape(3, -1).any(0)
     open_comp = np.unique(labels[open_face])
     keep = ~np.isin(labels, open_comp)
-    if not keep.any():
+    area = face_areas(np.asarray(mesh.vertices, np.float64), F)
+    if not keep.any() or area[keep].sum() < min_share * area.sum():
         return mesh
     return _subset(mesh, keep)
 
