@@ -171,3 +171,17 @@ def test_fan_closes_a_rim_around_a_new_centre_vertex():
     c = np.asarray(out.vertices[-1])  # on the opening's axis, faired outwards (the sides' slope continued)
     assert np.allclose(c[:2], 0.0, atol=1e-9) and 0.5 < c[2] < 1.5
     assert np.asarray(out.vertex_attributes["filled"]).tolist() == [0] * len(V) + [1]
+
+
+def test_holes_no_camera_faces_stay_open():
+    """A ring of 12 cameras level with a sphere: the hole on its side faces three of them within 60 degrees
+    and is filled; the hole on its top faces none (72 degrees off every camera) and stays open in the cleaned
+    mesh, counted as unseen; without cameras both are filled."""
+    holed = _holed(SMALL)
+    az = np.radians(np.arange(12) * 30.0)
+    ring = np.stack([3 * np.cos(az), 3 * np.sin(az), np.zeros(12)], 1)
+    out, info = fill_small_holes(holed, max_radius=0.3, centres=ring)
+    assert info["filled_holes"] == 1 and info["unseen"] == 1
+    assert boundary_length(out) == pytest.approx(_rim_length(holed, SMALL[0][0]), rel=1e-6)  # the top's rim
+    out, info = fill_small_holes(holed, max_radius=0.3)
+    assert info["filled_holes"] == 2 and boundary_length(out) == 0.0

@@ -34,6 +34,7 @@ class CleanConfig:
     fill_object_voxels: float = field(default=0.0, metadata={"help": "TSDF meshes of an object capture: fill holes up to this radius, voxels (0 = as --fill-holes-voxels)", "range": (0.0, 100_000.0)})
     fill_max_angle: float = field(default=60.0, metadata={"help": "fill a hole only where the surface along its rim faces like the rim's plane: their mean angle at most this, degrees (90 = any)", "range": (0.0, 90.0)})
     fill_max_offplane: float = field(default=0.5, metadata={"help": "fill a hole only when its rim lies near a plane: no rim vertex farther from it than this fraction of the hole's radius", "range": (0.0, None)})
+    fill_min_views: int = field(default=2, metadata={"help": "fill a hole only where at least this many cameras face it (within 60 degrees of its normal; 0 = any): the holes no photo saw well stay open in mesh.ply", "range": (0, 10_000)})
     closed: Literal["auto", "off"] = field(default="auto", metadata={"help": "auto: an object capture also gets mesh_closed.* (watertight: every hole filled, the support side closed); off: never"})
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)", "range": (0, 2_000_000_000)})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
@@ -155,7 +156,7 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
     del m  # the Open3D copy
     hole = fill_radius(cfg, metadata.get("voxel_size"), scene["detected"] == "object")
     fill = {"fill_radius": hole, "holes": None, "filled_holes": 0, "filled_notches": 0, "filled_faces": 0,
-            "kept_open": 0}
+            "kept_open": 0, "unseen": 0}
     if hole > 0:
         from .holes import fill_small_holes
 
@@ -164,7 +165,8 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
         # an object's opening at its support stays open here (mesh_closed closes it)
         margin = 2 * float(metadata.get("voxel_size") or 0.0) or 0.01 * hole
         keep_open = at_support(np.asarray(out.vertices), support, margin)
-        out, found = fill_small_holes(out, hole, cfg.fill_max_offplane, cfg.fill_max_angle, keep_open=keep_open)
+        out, found = fill_small_holes(out, hole, cfg.fill_max_offplane, cfg.fill_max_angle, keep_open=keep_open,
+                                      centres=camera_centres(cameras), min_views=cfg.fill_min_views)
         fill.update(found)
         log.info("cleaning: %d holes, %d filled whole and %d notches of bigger ones (up to %.3g in radius): %d "
                  "faces added", found["holes"], found["filled_holes"], found["filled_notches"], hole,
@@ -179,6 +181,13 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
         out = simplify(out, cfg.target_faces)
     return out
+
+
+def camera_centres(cameras) -> np.ndarray | None:
+    """(N, 3) camera centres from Views or centres; None without cameras."""
+    if cameras is None or not len(cameras):
+        return None
+    return np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
 
 
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
@@ -213,7 +222,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
         lo, hi = _weighted_percentile(centres, w, 1), _weighted_percentile(centres, w, 99)
         size = float(np.linalg.norm(hi - lo))
         if cameras is not None and len(cameras):
-            cams = np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
+            cams = camera_centres(cameras)
             mid = _weighted_percentile(centres, w, 50)
             size = min(size, float(np.median(np.linalg.norm(cams - mid, axis=1))))
         del centres, w

@@ -584,17 +584,23 @@ def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane, min_agree):
 
 
 def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: float = 0.5,
-                     max_angle: float = 90.0, notches: bool = True, keep_open=None) -> tuple[trimesh.Trimesh, dict]:
+                     max_angle: float = 90.0, notches: bool = True, keep_open=None, centres=None,
+                     min_views: int = 2, view_angle: float = 60.0) -> tuple[trimesh.Trimesh, dict]:
     """Fill the holes whose rim fits in a sphere of ``max_radius`` (scene units), lies near a plane (its farthest
     vertex off the best-fit plane at most ``max_offplane`` x that radius: a hole in a surface, not a gap between
     two sides) and along which the surface faces like that plane (the mean |cos| of the angle between the
     surface's normals at the rim and the plane's at least cos ``max_angle`` degrees: the surface around agrees,
     not a curled fringe); of a bigger hole, its notches (``split_notches``) under the same tests, and then what
     is left of it when that passes them. ``keep_open(vertices)``: True for a rim to leave as it is, notches and
-    all (an object's opening at its support, for ``close_mesh``). Returns the mesh and the facts: ``holes``
-    (rims found), ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``, ``kept_open``."""
+    all (an object's opening at its support, for ``close_mesh``). ``centres`` (N, 3): the cameras; with them a
+    hole (or notch) is filled only where at least ``min_views`` of them face it, within ``view_angle`` degrees of
+    its outward normal: a gap in surface the photos saw well, not one where they saw nothing (an object's top
+    seen at grazing angles from a ring of cameras, which ``mesh_closed`` closes). Returns the mesh and the
+    facts: ``holes`` (rims found), ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``,
+    ``kept_open``, ``unseen`` (holes and notches left open for want of views)."""
     loops = boundary_loops(mesh.faces, len(mesh.vertices))
-    info = {"holes": len(loops), "filled_holes": 0, "filled_notches": 0, "filled_faces": 0, "kept_open": 0}
+    info = {"holes": len(loops), "filled_holes": 0, "filled_notches": 0, "filled_faces": 0, "kept_open": 0,
+            "unseen": 0}
     if not loops:
         out, _ = fill_loops(mesh, [])
         return out, info
@@ -605,10 +611,27 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
     nv = rim_normals(V, F, allv)
     starts = np.r_[0, np.cumsum([len(lp) for lp in loops])]
 
+    cams = None if centres is None or not min_views else np.asarray(centres, np.float64).reshape(-1, 3)
+    cos_view = float(np.cos(np.radians(view_angle)))
+    unseen = [0]
+
+    def seen(lp, u):
+        """At least min_views cameras within view_angle of the hole's outward normal (the rim's faces' side)."""
+        if cams is None:
+            return True
+        P = V[lp]
+        n = hole_stats(V, [lp])["normal"][0]
+        n = n if float(u.sum(0) @ n) >= 0 else -n
+        d = cams - P.mean(0)
+        ok = int(((d @ n) >= cos_view * np.linalg.norm(d, axis=1)).sum()) >= min_views
+        unseen[0] += not ok
+        return ok
+
     def passes(lp, u):
         st = hole_stats(V, [lp])
         agree = float(np.abs(u @ st["normal"][0]).mean())
-        return st["radius"][0] <= max_radius and st["offplane"][0] <= max_offplane and agree >= min_agree
+        return (st["radius"][0] <= max_radius and st["offplane"][0] <= max_offplane and agree >= min_agree
+                and seen(lp, u))
 
     fill, n_whole, n_notches, n_kept = [], 0, 0, 0
     for j, lp in enumerate(loops):
@@ -623,13 +646,16 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
         if not notches:
             continue
         pieces, rest = split_notches(V, lp, u, max_radius, max_offplane, min_agree)
+        if cams is not None:
+            pieces = [pc for pc in pieces if seen(pc, rim_normals(V, F, pc))]
         fill += pieces
         n_notches += len(pieces)
         if pieces and len(rest) >= 3:
             if passes(rest, rim_normals(V, F, rest)):
                 fill.append(rest)
     out, nf = fill_loops(mesh, fill)
-    info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf), kept_open=n_kept)
+    info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf), kept_open=n_kept,
+                unseen=unseen[0])
     return out, info
 
 
