@@ -17,7 +17,8 @@
   the depth maps' bottom rows).
 
 Per dataset: MVS seconds per view (JIT warm-up excluded: it runs first on a tiny scene), peak memory, and a
-preview PNG (the mesh from outside and from the input cameras) in --out. Prints a table; --json writes it.
+preview PNG (the mesh from outside and from the input cameras; with --object also the object mesh and the closed
+companion) in --out. Prints a table; --json writes it.
 
     python tools/bench_real.py [--only walnut1,herz] [--out bench_real] [--json real.json] [--max-size 1600]
         [--planar-prior | --no-planar-prior] [--data ../shared/data] [--support-plane] [--object] [--reuse-depth]
@@ -177,6 +178,7 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
         render_preview(obj, work / "preview_object.png", cameras=ds.views)
         closed, closed_info = closed_companion(obj)
         export(closed, work / "mesh_closed.ply")
+        render_preview(closed, work / "preview_closed.png", cameras=ds.views)
     render_preview(mesh, work / "preview.png", cameras=ds.views)
     row = {"dataset": name, "views": len(ds.views), "depth_maps": rep["views"],
            "size": rep["per_view"][next(iter(rep["per_view"]))]["size"],
