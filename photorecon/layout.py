@@ -11,6 +11,7 @@ one layout; ``reconstruct`` adds the mesh, its previews and reports, and its wor
     ROOT/gt_mesh.ply            ground truth (synthetic datasets)
     ROOT/scene.json             synthetic scene settings and normalisation
     ROOT/mesh.{ply,obj,glb}     the fused, cleaned mesh
+    ROOT/mesh_closed.{ply,...}  an object capture's watertight companion of it
     ROOT/preview.png            the mesh from four viewpoints
     ROOT/report.json, report.html
     ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
@@ -27,14 +28,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
-                 "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "preview.png", "preview_mesh.ply", "report.json",
+                 "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "mesh_closed.ply", "mesh_closed.obj",
+                 "mesh_closed.glb", "preview.png", "preview_mesh.ply", "report.json",
                  "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
 
 COMMAND_WRITES: dict[str, tuple[str, ...] | None] = {
     "reconstruct": WRITTEN_NAMES,
     "synth": ("images", "depth", "masks", "sparse", "transforms.json", "gt_mesh.ply", "scene.json"),
     "sfm": ("images", "masks", "sparse", "transforms.json", "colmap"),
-    "fuse": ("mesh.ply", "mesh.obj", "mesh.glb", "preview.png", ".work"),
+    "fuse": ("mesh.ply", "mesh.obj", "mesh.glb", "mesh_closed.ply", "mesh_closed.obj", "mesh_closed.glb", "preview.png",
+             ".work"),
     "texture": ("mesh.obj", "mesh.mtl", "texture.png", "mesh.glb", "preview.png"),
     "convert": ("cameras.txt", "images.txt", "points3D.txt", "cameras.bin", "images.bin", "points3D.bin", "rigs.bin",
                 "frames.bin"),
@@ -124,6 +127,10 @@ class Layout:
     def mesh(self, fmt: str = "ply") -> Path:
         """``mesh.ply``, ``mesh.obj`` or ``mesh.glb``."""
         return self.root / f"mesh.{fmt}"
+
+    def mesh_closed(self, fmt: str = "ply") -> Path:
+        """``mesh_closed.ply`` (``.obj``, ``.glb``): an object capture's watertight companion of the mesh."""
+        return self.root / f"mesh_closed.{fmt}"
 
     def depth_map(self, name: str) -> Path:
         """``depth/NAME.npy`` (z-depth of view ``name``)."""

@@ -7,7 +7,9 @@ OUT layout::
     OUT/transforms.json    the same cameras, NeRF convention
     OUT/masks/             NAME.png: --masks or the images' alpha channels, undistorted like the images
     OUT/depth/             NAME.npy (+ NAME.conf.npy) and NAME.png previews
-    OUT/mesh.ply, mesh.glb the cleaned, fused mesh
+    OUT/mesh.ply, mesh.glb the cleaned, fused mesh (small holes filled; PLY vertex/face property ``filled``)
+    OUT/mesh_closed.ply, mesh_closed.glb  object captures: a watertight companion (every hole filled, the support
+                           side closed)
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
     OUT/preview_mesh.ply   the mesh decimated to <= 200k faces: report.html's 3D view
     OUT/textured/          with --texture: mesh.obj + mesh.mtl + texture.png, mesh.glb (texture embedded),
@@ -104,7 +106,8 @@ class ReconstructResult(Result):
     stages: dict  # stage -> seconds, peak_mb, cached
     poses: dict  # source, registered, unregistered, scale, sfm_seconds
     depth: dict  # source, views, skipped / excluded, seconds_per_view
-    mesh: dict  # vertices, faces, depth_maps_fused, mesher, watertight, boundary_edges, invented_fraction
+    mesh: dict  # vertices, faces, depth_maps_fused, mesher, watertight, boundary_edges, boundary_length,
+    # filled_area, fill, closed (mesh_closed: watertight, filled_area), invented_fraction
     texture: dict  # with --texture: faces, charts, views_used, folder ...
     warnings: list
     units: str  # "metres" when a scale was found, else "arbitrary"
@@ -159,15 +162,18 @@ def fusion_stage(ds, fusion_cfg: FusionConfig, clean_cfg, layout: Layout, format
     mesh, info = fuse_to_files(frames, fusion_cfg, clean_cfg, layout, formats, ds.views, ds.model.points, executor,
                                ds, work_dir)
     if refine_cfg is not None and refine_cfg.refine:
-        from .mesh import export
+        from .fusion import write_closed
+        from .mesh import boundary_length, export
         from .mesh.refine import refine_dataset
 
         del frames
         # a mesh simplified to a face budget stays at its budget
+        metadata = dict(mesh.metadata)  # what the cleaning found (the scene, the support plane)
         mesh, info["refine"] = refine_dataset(mesh, ds, refine_cfg, subdivide=not clean_cfg.target_faces)
-        info.update(vertices=len(mesh.vertices), faces=len(mesh.faces))
+        info.update(vertices=len(mesh.vertices), faces=len(mesh.faces), boundary_length=boundary_length(mesh))
         for fmt in formats:
             export(mesh, layout.mesh(fmt))
+        info["closed"] = write_closed(mesh, clean_cfg, layout, formats, metadata)
     return mesh, info
 
 
@@ -341,7 +347,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
 
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats,
                               **({"refine": asdict(cfgs.refine)} if cfgs.refine.refine else {})},
-                   fusion, outputs=[layout.mesh(fmt) for fmt in formats])
+                   fusion, outputs=[layout.mesh(fmt) for fmt in formats] + [layout.mesh_closed(fmt) for fmt in formats],
+                   optional=[layout.mesh_closed(fmt) for fmt in formats])
         stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh])
 
         # 4. optional: a UV-textured mesh baked from the photos: OUT/textured/

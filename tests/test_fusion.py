@@ -628,10 +628,10 @@ def test_from_open3d_copies_what_it_takes():
     assert np.array_equal(out.visual.vertex_colors[:, :3], (np.clip(rgb, 0, 1) * 255).astype(np.uint8))
 
 
-def test_clean_fills_holes_as_fill_holes_on_the_cleaned_mesh():
-    """The hole filling inside ``clean`` (from the Open3D mesh) gives the very mesh that ``fill_holes`` gives
-    on the cleaned, unfilled mesh: same vertices, faces and colours."""
-    from photorecon.mesh import fill_holes
+def test_clean_fills_holes_as_fill_small_holes_on_the_cleaned_mesh():
+    """The hole filling inside ``clean`` gives the very mesh that ``fill_small_holes`` gives on the cleaned,
+    unfilled mesh: same vertices, faces and colours."""
+    from photorecon.mesh import fill_small_holes
 
     s = trimesh.creation.icosphere(subdivisions=4)
     keep = np.ones(len(s.faces), bool)
@@ -640,7 +640,7 @@ def test_clean_fills_holes_as_fill_holes_on_the_cleaned_mesh():
     holed = trimesh.Trimesh(s.vertices, s.faces[keep], vertex_colors=colors, process=False)
     holed.metadata["voxel_size"] = 0.01
     filled = clean(holed, CleanConfig())
-    expected = fill_holes(clean(holed, CleanConfig(fill_holes_voxels=0)), 15 * 0.01)
+    expected, _ = fill_small_holes(clean(holed, CleanConfig(fill_holes_voxels=0)), 10 * 0.01, 0.5, 60.0)
     assert len(filled.faces) == len(holed.faces) + 3
     assert np.array_equal(filled.vertices, expected.vertices) and np.array_equal(filled.faces, expected.faces)
     assert np.array_equal(filled.visual.vertex_colors, expected.visual.vertex_colors)

@@ -7,17 +7,22 @@
   with the defaults (``--scene auto``: the row's ``scene`` says what was detected and removed). With
   --support-plane also DTU-style, the platform under the nut left out (``support_plane``): the reference
   cloud has no platform, the photos do. With --object also the same fused mesh cleaned with ``--scene object``
-  (photorecon's own support-plane removal, ``mesh.remove_support``, without the detection), scored uncropped.
+  (photorecon's own support-plane removal, ``mesh.remove_support``, without the detection), scored uncropped,
+  and its watertight companion (``mesh.closed_companion``, mesh_closed.ply; ``*_closed``). ``boundary_m``: the
+  cleaned mesh's open boundary length (scene units: metres here). --reuse-depth: the depth maps an earlier
+  run left in --out, no MVS.
 * herz-jesu-p8, entry-p10 (3072x2048 facades, Strecha ground-truth cameras): the fraction of each image's
   pixels whose depth at least two other views confirm, the fused mesh's face count and the area of the
   ground in front of the facade (``ground_area``: faces within 15 cm of, and facing like, a plane fitted to
   the depth maps' bottom rows).
 
 Per dataset: MVS seconds per view (JIT warm-up excluded: it runs first on a tiny scene), peak memory, and a
-preview PNG (the mesh from outside and from the input cameras) in --out. Prints a table; --json writes it.
+preview PNG (the mesh from outside and from the input cameras; with --object also the object mesh and the closed
+companion) in --out. Prints a table; --json writes it.
 
     python tools/bench_real.py [--only walnut1,herz] [--out bench_real] [--json real.json] [--max-size 1600]
-        [--planar-prior | --no-planar-prior] [--data ../shared/data] [--support-plane] [--object] [--set NAME=VALUE]
+        [--planar-prior | --no-planar-prior] [--data ../shared/data] [--support-plane] [--object] [--reuse-depth]
+        [--set NAME=VALUE]
 """
 from __future__ import annotations
 
@@ -36,7 +41,8 @@ from photorecon import progress
 from photorecon.depth.mvs import MVSConfig, run_mvs
 from photorecon.fusion import FusionConfig, fuse, load_frames
 from photorecon.io.dataset import Dataset
-from photorecon.mesh import CleanConfig, clean, export, ransac_plane
+from photorecon.mesh import (CleanConfig, boundary_length, clean, closed_companion, export, filled_area,
+                             ransac_plane)
 from photorecon.metrics import cloud_metrics, load_reference
 from photorecon.report.preview import render_preview
 from photorecon.resources import peak_bytes, reset_peak
@@ -142,13 +148,18 @@ def _scores(row: dict, mesh, reference, suffix: str = "", crop_plane=None):
 
 
 def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | None = None,
-            crop_support: bool = False, object_mode: bool = False) -> dict:
+            crop_support: bool = False, object_mode: bool = False, reuse_depth: bool = False) -> dict:
     ds = Dataset.open(root)
     work = out / name
     work.mkdir(parents=True, exist_ok=True)
     reset_peak()
     t0 = time.perf_counter()
-    rep = run_mvs(ds, work / "depth", cfg)
+    depth_dir = work / "depth"
+    if reuse_depth and (depth_dir / "mvs_report.json").is_file():  # an earlier run's depth maps, as they are
+        rep = json.loads((depth_dir / "mvs_report.json").read_text())
+        print(f"{name}: depth maps reused from {depth_dir}", flush=True)
+    else:
+        rep = run_mvs(ds, depth_dir, cfg)
     t_mvs = time.perf_counter() - t0
     peak_mvs = peak_bytes() / 2**20
     confirmed = [v["valid_fraction"] for v in rep["per_view"].values()]
@@ -160,11 +171,14 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
     mesh = clean(fused, CleanConfig(), cameras=ds.views)  # the defaults: --scene auto
     t_fuse = time.perf_counter() - t1
     export(mesh, work / "mesh.ply")
-    obj = None
-    if object_mode:  # the same fused mesh cleaned with --scene object
+    obj = closed = None
+    if object_mode:  # the same fused mesh cleaned with --scene object, and its closed companion
         obj = clean(fused, CleanConfig(scene="object"), cameras=ds.views)
         export(obj, work / "mesh_object.ply")
         render_preview(obj, work / "preview_object.png", cameras=ds.views)
+        closed, closed_info = closed_companion(obj)
+        export(closed, work / "mesh_closed.ply")
+        render_preview(closed, work / "preview_closed.png", cameras=ds.views)
     render_preview(mesh, work / "preview.png", cameras=ds.views)
     row = {"dataset": name, "views": len(ds.views), "depth_maps": rep["views"],
            "size": rep["per_view"][next(iter(rep["per_view"]))]["size"],
@@ -174,6 +188,7 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
            "confirmed_2_views_mean": float(np.mean(confirmed)), "confirmed_2_views_min": float(np.min(confirmed)),
            "fusion_s": t_fuse, "voxel": mesh.metadata.get("voxel_size"), "faces": len(mesh.faces),
            "skipped": rep["skipped"], "scene": mesh.metadata.get("scene"),
+           "boundary_m": boundary_length(mesh), "filled_area": filled_area(mesh), "fill": mesh.metadata.get("fill"),
            "scene_detected": (mesh.metadata.get("scene") or {}).get("detected")}
     ref = root / "reference.ply"
     if ref.is_file():
@@ -182,6 +197,11 @@ def run_one(name: str, root: Path, out: Path, cfg: MVSConfig, fusion: dict | Non
         if obj is not None:
             _scores(row, obj, reference, "_object")
             row["object_faces"] = len(obj.faces)
+            row["boundary_m_object"] = boundary_length(obj)
+            row["filled_area_object"] = filled_area(obj)
+            row["closed_watertight"] = closed_info["watertight"]
+            row["closed_filled_area"] = closed_info["filled_area"]
+            _scores(row, closed, reference, "_closed")
             row["object_support"] = {k: v for k, v in obj.metadata.items() if k.startswith("support_")}
         row["accuracy_median_mm"] = m.accuracy_median * 1000
         row["completeness_median_mm"] = m.completeness_median * 1000
@@ -215,6 +235,8 @@ def main() -> int:
     ap.add_argument("--object", action="store_true",
                     help="walnuts: also clean the same fused mesh with --object (the support plane and everything "
                          "below it removed, photorecon.mesh.remove_support) and score it uncropped (*_object)")
+    ap.add_argument("--reuse-depth", action="store_true",
+                    help="use the depth maps an earlier run left in --out (skips MVS; its timings are then not measured)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="override any MVSConfig or FusionConfig setting, e.g. --set pm_radius=5 --set normal_sdf=0.2 "
                          "(repeatable)")
@@ -239,17 +261,18 @@ def main() -> int:
         if not root.is_dir():
             print(f"{name}: {root} not found, skipped", file=sys.stderr)
             continue
-        row = run_one(name, root, Path(args.out), cfg, fusion, args.support_plane, args.object)
+        row = run_one(name, root, Path(args.out), cfg, fusion, args.support_plane, args.object, args.reuse_depth)
         rows.append(row)
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
         if args.json:
             Path(args.json).write_text(json.dumps({"warm_up_s": warm, "config": asdict(cfg), "fusion": fusion, "rows": rows}, indent=1))
     cols = ["dataset", "size", "mvs_s_per_view", "mvs_peak_mb", "confirmed_2_views_mean", "scene_detected", "faces", "ground_m2",
-            "acc@1mm", "comp@1mm", "F@0.5mm", "F@1mm", "F@2mm"]
+            "boundary_m", "acc@1mm", "comp@1mm", "F@0.5mm", "F@1mm", "F@2mm"]
     if args.support_plane:
         cols += ["acc@1mm_above_support", "F@1mm_above_support"]
     if args.object:
-        cols += ["acc@1mm_object", "comp@1mm_object", "F@1mm_object"]
+        cols += ["boundary_m_object", "acc@1mm_object", "comp@1mm_object", "F@1mm_object", "closed_watertight",
+                 "closed_filled_area", "F@1mm_closed"]
     print("\n| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for r in rows:
         print("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r.get(c), float) else str(r.get(c, "")) for c in cols) + " |")

@@ -109,7 +109,7 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     Once fused, each entry of ``frames`` is replaced by the frame with its depth map only (the surface report
     needs no more): the colour, confidence and normal maps are freed before the cleaning unless the caller
     holds the frames elsewhere."""
-    from ..mesh import clean_open3d, export, to_open3d
+    from ..mesh import boundary_length, clean_open3d, export, filled_area, to_open3d
 
     fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
     if isinstance(frames, list):
@@ -125,6 +125,7 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     release_memory()
     for fmt in formats:
         export(mesh, layout.mesh(fmt))
+    closed = write_closed(mesh, clean_cfg, layout, formats)
     release_memory()
     surface = surface_report(mesh, frames)
     log.info("mesh: %d views -> %d vertices, %d faces; watertight: %s, %d boundary edges, %.1f%% of its area "
@@ -135,5 +136,32 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     fusion = {"streamed": isinstance(frames, FrameStore)}  # depth frames read one at a time (--fusion-memory)
     if metadata.get("voxel_size"):
         fusion["voxel_size"] = float(metadata["voxel_size"])
+    fill = {"boundary_length": boundary_length(mesh), "filled_area": filled_area(mesh),
+            "fill": mesh.metadata.get("fill"), "closed": closed}
     return mesh, {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "depth_maps_fused": len(frames),
-                  "mesher": cfg.mesher, **fusion, **surface, **support, **scene}
+                  "mesher": cfg.mesher, **fusion, **surface, **fill, **support, **scene}
+
+
+def write_closed(mesh: trimesh.Trimesh, clean_cfg, layout, formats: tuple[str, ...], metadata: dict | None = None):
+    """For an object capture (``metadata``, default the mesh's: its ``scene``, what the cleaning detected) unless
+    ``clean_cfg.closed`` is "off": the watertight companion of ``mesh`` (``mesh.closed_companion``) written to
+    ``layout.mesh_closed(fmt)`` for each format; returns its facts (``file``, ``watertight``, ``filled_area``,
+    ``faces``), or None after removing any such file an earlier run left."""
+    from ..mesh import closed_companion, export
+
+    metadata = mesh.metadata if metadata is None else metadata
+    if getattr(clean_cfg, "closed", "off") == "off" or (metadata.get("scene") or {}).get("detected") != "object":
+        for fmt in formats:
+            layout.mesh_closed(fmt).unlink(missing_ok=True)
+        return None
+    src = mesh
+    if metadata is not mesh.metadata:
+        src = trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_colors=mesh.visual.vertex_colors
+                              if mesh.visual.kind == "vertex" else None, process=False)
+        src.metadata.update(metadata)
+    closed, info = closed_companion(src)
+    for fmt in formats:
+        export(closed, layout.mesh_closed(fmt))
+    log.info("closed mesh: %s, %d faces, %.4g of its area filled (%s)", "watertight" if info["watertight"] else
+             "NOT watertight", info["faces"], info["filled_area"], layout.mesh_closed(formats[0]).name)
+    return {"file": layout.mesh_closed(formats[0]).name, **info}

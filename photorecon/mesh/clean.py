@@ -1,7 +1,7 @@
 """Mesh cleaning: floaters and small components, simplification, hole filling; the Open3D conversions.
 
 trimesh ``Trimesh`` (with ``process=False``: geometry is never rewritten behind the caller's back) is the
-in-memory type; Open3D does the decimation and hole filling, trimesh the GLB/OBJ export.
+in-memory type; Open3D does the decimation, ``mesh.holes`` the hole filling, trimesh the GLB/OBJ export.
 """
 from __future__ import annotations
 
@@ -30,7 +30,12 @@ class CleanConfig:
     floater_distance: float = field(default=0.05, metadata={"help": "a small component farther than this from the main surface is a floater and dropped; fraction of the scene size", "range": (0.0, 100.0)})
     min_detail: float = field(default=0.002, metadata={"help": "components with less area than this fraction of the largest are dropped wherever they are (debris)", "range": (0.0, 1.0)})
     fill_holes: float = field(default=0.0, metadata={"help": "fill holes up to this radius, scene units (0 = the --fill-holes-voxels default)", "range": (0.0, None)})
-    fill_holes_voxels: float = field(default=15.0, metadata={"help": "TSDF meshes: fill holes up to this radius, voxels (0 = off)", "range": (0.0, 100_000.0)})
+    fill_holes_voxels: float = field(default=10.0, metadata={"help": "TSDF meshes: fill holes up to this radius, voxels (0 = off, for object captures too)", "range": (0.0, 100_000.0)})
+    fill_object_voxels: float = field(default=0.0, metadata={"help": "TSDF meshes of an object capture: fill holes up to this radius, voxels (0 = as --fill-holes-voxels)", "range": (0.0, 100_000.0)})
+    fill_max_angle: float = field(default=60.0, metadata={"help": "fill a hole only where the surface along its rim faces like the rim's plane: their mean angle at most this, degrees (90 = any)", "range": (0.0, 90.0)})
+    fill_max_offplane: float = field(default=0.5, metadata={"help": "fill a hole only when its rim lies near a plane: no rim vertex farther from it than this fraction of the hole's radius", "range": (0.0, None)})
+    fill_min_views: int = field(default=2, metadata={"help": "fill a hole only where at least this many cameras face it (within 60 degrees of its normal; 0 = any): the holes no photo saw well stay open in mesh.ply", "range": (0, 10_000)})
+    closed: Literal["auto", "off"] = field(default="auto", metadata={"help": "auto: an object capture also gets mesh_closed.* (watertight: every hole filled, the support side closed); off: never"})
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)", "range": (0, 2_000_000_000)})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units", "range": (None, None), "length": 6, "box": True, "metavar": "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"})
@@ -40,6 +45,18 @@ class CleanConfig:
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+
+
+def fill_radius(cfg: CleanConfig, voxel: float | None, is_object: bool) -> float:
+    """The radius (scene units) up to which the cleaning fills holes: ``cfg.fill_holes`` when set, else on a TSDF
+    mesh (``voxel`` known) ``fill_holes_voxels`` voxels, or ``fill_object_voxels`` for an object capture; 0 (no
+    filling) otherwise, and with ``fill_holes_voxels`` 0."""
+    if cfg.fill_holes > 0:
+        return float(cfg.fill_holes)
+    if not voxel or not cfg.fill_holes_voxels > 0:
+        return 0.0
+    voxels = cfg.fill_object_voxels if is_object and cfg.fill_object_voxels > 0 else cfg.fill_holes_voxels
+    return float(voxels) * float(voxel)
 
 
 def to_open3d(mesh: trimesh.Trimesh):
@@ -86,9 +103,11 @@ def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
 
 def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -> trimesh.Trimesh:
     """Remove duplicated and degenerate faces, unreferenced vertices, debris and floaters (``drop_floaters``;
-    ``cameras``: Views or camera centres (N, 3), the scale of "far"); then optionally crop, fill holes (by
-    default, on a TSDF mesh whose ``metadata["voxel_size"]`` is known, those up to ``fill_holes_voxels``
-    voxels in radius) and simplify. Scalar metadata (mesher, voxel size, ...) is kept. Raises
+    ``cameras``: Views or camera centres (N, 3), the scale of "far"); then optionally crop, fill holes
+    (``mesh.fill_small_holes``: by default, on a TSDF mesh whose ``metadata["voxel_size"]`` is known, those up
+    to ``fill_radius`` in radius whose rim agrees with the surface around it; the surface's own vertices and
+    faces unchanged, the new ones marked ``filled``) and simplify. Scalar metadata (mesher, voxel size, ...)
+    is kept; ``metadata["fill"]`` says what was filled. Raises
     ``EmptyMeshError`` if nothing is left. ``clean_open3d`` does the same on an Open3D copy of the mesh."""
     if not len(mesh.faces):
         raise EmptyMeshError("the mesh has no triangle")
@@ -133,15 +152,27 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
         del drop
     if not len(m.triangles):
         raise EmptyMeshError("cleaning left no triangle (everything cropped or in small components)")
-    hole = cfg.fill_holes
-    if not hole > 0 and cfg.fill_holes_voxels > 0 and metadata.get("voxel_size"):
-        hole = cfg.fill_holes_voxels * float(metadata["voxel_size"])  # the pinholes of a TSDF surface
-    if hole > 0:
-        out = _fill_holes_open3d(m, hole)
-    else:
-        out = from_open3d(m)
+    out = from_open3d(m)
     del m  # the Open3D copy
+    hole = fill_radius(cfg, metadata.get("voxel_size"), scene["detected"] == "object")
+    fill = {"fill_radius": hole, "holes": None, "filled_holes": 0, "filled_notches": 0, "filled_faces": 0,
+            "kept_open": 0, "unseen": 0}
+    if hole > 0:
+        from .holes import fill_small_holes
+
+        from .holes import at_support
+
+        # an object's opening at its support stays open here (mesh_closed closes it)
+        margin = 2 * float(metadata.get("voxel_size") or 0.0) or 0.01 * hole
+        keep_open = at_support(np.asarray(out.vertices), support, margin)
+        out, found = fill_small_holes(out, hole, cfg.fill_max_offplane, cfg.fill_max_angle, keep_open=keep_open,
+                                      centres=camera_centres(cameras), min_views=cfg.fill_min_views)
+        fill.update(found)
+        log.info("cleaning: %d holes, %d filled whole and %d notches of bigger ones (up to %.3g in radius): %d "
+                 "faces added", found["holes"], found["filled_holes"], found["filled_notches"], hole,
+                 found["filled_faces"])
     out.metadata.update({k: v for k, v in metadata.items() if isinstance(v, (bool, int, float, str))})
+    out.metadata["fill"] = fill
     if support is not None:
         out.metadata.update(support)
     out.metadata["scene"] = scene
@@ -150,6 +181,13 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
     if cfg.target_faces > 0 and len(out.faces) > cfg.target_faces:
         out = simplify(out, cfg.target_faces)
     return out
+
+
+def camera_centres(cameras) -> np.ndarray | None:
+    """(N, 3) camera centres from Views or centres; None without cameras."""
+    if cameras is None or not len(cameras):
+        return None
+    return np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
 
 
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
@@ -184,7 +222,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
         lo, hi = _weighted_percentile(centres, w, 1), _weighted_percentile(centres, w, 99)
         size = float(np.linalg.norm(hi - lo))
         if cameras is not None and len(cameras):
-            cams = np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
+            cams = camera_centres(cameras)
             mid = _weighted_percentile(centres, w, 50)
             size = min(size, float(np.median(np.linalg.norm(cams - mid, axis=1))))
         del centres, w
@@ -365,15 +403,3 @@ def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:
     filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
     out = from_open3d(filled)
     return out if len(out.faces) >= len(mesh.faces) else mesh
-
-
-def _fill_holes_open3d(m, hole_size: float) -> trimesh.Trimesh:
-    """``fill_holes(from_open3d(m), hole_size)`` without the trimesh copy in between; ``m`` (an Open3D mesh
-    from ``to_open3d``, colours k / 255) is not changed."""
-    import open3d as o3d
-
-    t = o3d.t.geometry.TriangleMesh.from_legacy(m)
-    # t lives on until the result is copied to a legacy mesh: the filled mesh may still point into its storage
-    filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
-    del t
-    return from_open3d(filled if len(filled.triangles) >= len(m.triangles) else m)

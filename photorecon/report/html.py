@@ -302,6 +302,12 @@ def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -
              "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces"),
              "watertight": report.get("mesh", {}).get("watertight"),
              "boundary edges": report.get("mesh", {}).get("boundary_edges"),
+             "open boundary length": report.get("mesh", {}).get("boundary_length"),
+             "area of filled holes": report.get("mesh", {}).get("filled_area"),
+             "closed companion": "none" if not isinstance(report.get("mesh", {}).get("closed"), dict) else
+                 (f"{report['mesh']['closed'].get('file')}: "
+                  f"{'watertight' if report['mesh']['closed'].get('watertight') else 'not watertight'}, "
+                  f"filled area {report['mesh']['closed'].get('filled_area', 0):.4g}"),
              "invented area (farther than invent_distance from every observed point)":
                  None if report.get("mesh", {}).get("invented_fraction") is None
                  else f"{100 * report['mesh']['invented_fraction']:.1f}%"}
