@@ -609,6 +609,8 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
     min_agree = float(np.cos(np.radians(max_angle)))
     allv = np.concatenate(loops)
     nv = rim_normals(V, F, allv)
+    normal_at = np.zeros((len(V), 3))
+    normal_at[allv] = nv  # a notch's rim is part of its hole's
     starts = np.r_[0, np.cumsum([len(lp) for lp in loops])]
 
     cams = None if centres is None or not min_views else np.asarray(centres, np.float64).reshape(-1, 3)
@@ -647,11 +649,11 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
             continue
         pieces, rest = split_notches(V, lp, u, max_radius, max_offplane, min_agree)
         if cams is not None:
-            pieces = [pc for pc in pieces if seen(pc, rim_normals(V, F, pc))]
+            pieces = [pc for pc in pieces if seen(pc, normal_at[pc])]
         fill += pieces
         n_notches += len(pieces)
         if pieces and len(rest) >= 3:
-            if passes(rest, rim_normals(V, F, rest)):
+            if passes(rest, normal_at[rest]):
                 fill.append(rest)
     out, nf = fill_loops(mesh, fill)
     info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf), kept_open=n_kept,
