@@ -185,3 +185,13 @@ def test_holes_no_camera_faces_stay_open():
     assert boundary_length(out) == pytest.approx(_rim_length(holed, SMALL[0][0]), rel=1e-6)  # the top's rim
     out, info = fill_small_holes(holed, max_radius=0.3)
     assert info["filled_holes"] == 2 and boundary_length(out) == 0.0
+
+
+def test_pinholes_filled_whatever_the_views():
+    """With ``pinhole`` 1 every hole up to the fill radius counts as a pinhole: the top hole no camera faces is
+    filled as well, and none is counted as unseen."""
+    holed = _holed(SMALL)
+    az = np.radians(np.arange(12) * 30.0)
+    ring = np.stack([3 * np.cos(az), 3 * np.sin(az), np.zeros(12)], 1)
+    out, info = fill_small_holes(holed, max_radius=0.3, centres=ring, pinhole=1.0)
+    assert info["filled_holes"] == 2 and info["unseen"] == 0 and boundary_length(out) == 0.0

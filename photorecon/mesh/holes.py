@@ -585,7 +585,7 @@ def _pick_notches(P, nrm, ci, cj, max_radius, max_offplane, min_agree):
 
 def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: float = 0.5,
                      max_angle: float = 90.0, notches: bool = True, keep_open=None, centres=None,
-                     min_views: int = 2, view_angle: float = 60.0) -> tuple[trimesh.Trimesh, dict]:
+                     min_views: int = 2, view_angle: float = 60.0, pinhole: float = 0.3) -> tuple[trimesh.Trimesh, dict]:
     """Fill the holes whose rim fits in a sphere of ``max_radius`` (scene units), lies near a plane (its farthest
     vertex off the best-fit plane at most ``max_offplane`` x that radius: a hole in a surface, not a gap between
     two sides) and along which the surface faces like that plane (the mean |cos| of the angle between the
@@ -595,7 +595,8 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
     all (an object's opening at its support, for ``close_mesh``). ``centres`` (N, 3): the cameras; with them a
     hole (or notch) is filled only where at least ``min_views`` of them face it, within ``view_angle`` degrees of
     its outward normal: a gap in surface the photos saw well, not one where they saw nothing (an object's top
-    seen at grazing angles from a ring of cameras, which ``mesh_closed`` closes). Returns the mesh and the
+    seen at grazing angles from a ring of cameras, which ``mesh_closed`` closes); pinholes (a radius up to
+    ``pinhole`` x ``max_radius``) are filled whatever the views. Returns the mesh and the
     facts: ``holes`` (rims found), ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``,
     ``kept_open``, ``unseen`` (holes and notches left open for want of views)."""
     loops = boundary_loops(mesh.faces, len(mesh.vertices))
@@ -622,7 +623,10 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
         if cams is None:
             return True
         P = V[lp]
-        n = hole_stats(V, [lp])["normal"][0]
+        st = hole_stats(V, [lp])
+        if st["radius"][0] <= pinhole * max_radius:  # a pinhole: filled whatever the views
+            return True
+        n = st["normal"][0]
         n = n if float(u.sum(0) @ n) >= 0 else -n
         d = cams - P.mean(0)
         ok = int(((d @ n) >= cos_view * np.linalg.norm(d, axis=1)).sum()) >= min_views
