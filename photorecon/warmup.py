@@ -4,7 +4,7 @@ later processes load them in well under a second instead of compiling them (tens
 
 The kernels run through the same code paths as a reconstruction (PatchMatch MVS with its geometric filter and
 the planar prior on a tiny synthetic scene, then weighted TSDF fusion of its depth maps and the photometric
-refinement of that mesh), so they are compiled
+refinement of that mesh; the hole filling's kernels on a hexagon), so they are compiled
 for the argument types a real run passes; the two PatchMatch kernels only the tests and diagnostics call
 (``ncc_at``, ``photometric_cost``) run on arrays of the same types. ``kernels()`` lists every compiled function
 of the package: ``tests/test_warmup.py`` checks that ``warm_up`` reaches each one.
@@ -72,6 +72,19 @@ def _tiny_pm_calls() -> None:
     K.photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, 0.1, 1e-5, depth, normal, out)
 
 
+def _tiny_hole_calls() -> None:
+    """The hole filling's kernels (``mesh.holes``: ear clipping, the choice of notches) with the argument types of
+    their callers."""
+    from .mesh import holes as H
+
+    t = np.linspace(0.0, 2 * np.pi, 7)[:-1]
+    xy = np.stack([np.cos(t), np.sin(t)], 1)
+    P = np.ascontiguousarray(np.hstack([xy, np.zeros((6, 1))]))
+    H._ear_clip(xy, P, np.zeros(0, np.int64))
+    nrm = np.ascontiguousarray(np.tile([0.0, 0.0, 1.0], (6, 1)))
+    H._pick_notches(P, nrm, np.array([0], np.int64), np.array([3], np.int64), 2.0, 0.5, 0.0)
+
+
 def warm_up() -> dict:
     """Compile (or load from numba's cache) every kernel of the package. Returns the seconds, and the entry
     kernels (``entry_kernels``) compiled in this call and those loaded from the cache."""
@@ -105,6 +118,7 @@ def warm_up() -> dict:
             # the photometric refinement (--refine) of that mesh against the photos
             refine_dataset(mesh, ds, RefineConfig(refine=True, refine_levels=1, refine_iterations=1))
         _tiny_pm_calls()
+        _tiny_hole_calls()
     finally:
         logging.getLogger("photorecon").setLevel(level)
         progress.set_enabled(was)

@@ -38,5 +38,6 @@ def test_warmup_reaches_every_kernel_and_a_new_process_compiles_none():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     again = json.loads(out.stdout.strip().splitlines()[-1])
+    assert again["missing"] == [], f"not reached by warm_up in a new process: {again['missing']}"
     assert again["compiled"] == [], f"compiled again in a new process: {again['compiled']}"
     assert sorted(again["cached"]) == sorted(entries)
