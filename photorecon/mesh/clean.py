@@ -16,7 +16,8 @@ import trimesh
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
 from ..io.atomic import atomic_path
 from ..fields import check_config
-from .geometry import face_areas, face_centres, face_cross, triangle_components
+from .geometry import face_areas, face_centres, face_cross, face_edge_keys, triangle_components
+from .holes import NO_FILL, at_support, fill_small_holes
 from .scene import detect_and_remove
 
 log = logging.getLogger("photorecon")
@@ -155,13 +156,8 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
     out = from_open3d(m)
     del m  # the Open3D copy
     hole = fill_radius(cfg, metadata.get("voxel_size"), scene["detected"] == "object")
-    fill = {"fill_radius": hole, "holes": None, "filled_holes": 0, "filled_notches": 0, "filled_faces": 0,
-            "kept_open": 0, "unseen": 0}
+    fill = {"fill_radius": hole, **NO_FILL}
     if hole > 0:
-        from .holes import fill_small_holes
-
-        from .holes import at_support
-
         # an object's opening at its support stays open here (mesh_closed closes it)
         margin = 2 * float(metadata.get("voxel_size") or 0.0) or 0.01 * hole
         keep_open = at_support(np.asarray(out.vertices), support, margin)
@@ -301,12 +297,7 @@ def edge_use_counts(faces: np.ndarray) -> np.ndarray:
     F = np.asarray(faces)
     if not len(F):
         return np.zeros(0, np.int64)
-    n = int(F.max()) + 1
-    m = len(F)
-    keys = np.empty(3 * m, np.int64)
-    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        a, b = F[:, i].astype(np.int64), F[:, j].astype(np.int64)
-        keys[k * m:(k + 1) * m] = np.minimum(a, b) * n + np.maximum(a, b)
+    keys = face_edge_keys(F)
     keys.sort()
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
     return np.diff(np.r_[starts, len(keys)])

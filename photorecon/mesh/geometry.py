@@ -1,6 +1,6 @@
 """Per-triangle quantities of a mesh given as arrays (V (N, 3), T (F, 3)): edge cross products, areas, centres,
-computed a block of triangles at a time (no (F, 3, 3) corner array of a mesh of millions of faces), and the
-connected components of its triangles. The cleaning,
+computed a block of triangles at a time (no (F, 3, 3) corner array of a mesh of millions of faces), one int64
+key per edge, and the connected components of its triangles. The cleaning,
 the support removal, the hole filling and the refinement share them; this module imports nothing of theirs."""
 from __future__ import annotations
 
@@ -34,6 +34,23 @@ def face_centres(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> np.ndarr
     return out
 
 
+def edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """One int64 key per undirected edge (a, b) of a mesh of ``n`` vertices: min * n + max."""
+    a, b = np.asarray(a).astype(np.int64), np.asarray(b).astype(np.int64)
+    return np.minimum(a, b) * n + np.maximum(a, b)
+
+
+def face_edge_keys(T: np.ndarray, n: int | None = None) -> np.ndarray:
+    """``edge_keys`` of every face's edges (3F,): the edges (0, 1) of all faces, then (1, 2), then (2, 0)."""
+    T = np.asarray(T)
+    n = int(T.max()) + 1 if n is None else n
+    F = len(T)
+    keys = np.empty(3 * F, np.int64)
+    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
+        keys[k * F:(k + 1) * F] = edge_keys(T[:, i], T[:, j], n)
+    return keys
+
+
 def triangle_components(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
     """Connected components of triangles that share an edge (as Open3D's ``cluster_connected_triangles``):
     (per-triangle label (F,), per-component area (C,)). Built from one sorted int64 key per face edge and a
@@ -44,11 +61,7 @@ def triangle_components(V: np.ndarray, T: np.ndarray, block: int = 1 << 20) -> t
     F = len(T)
     if not F:
         return np.zeros(0, np.int64), np.zeros(0)
-    n = int(T.max()) + 1
-    keys = np.empty(3 * F, np.int64)
-    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        a, b = T[:, i].astype(np.int64), T[:, j].astype(np.int64)
-        keys[k * F:(k + 1) * F] = np.minimum(a, b) * n + np.maximum(a, b)
+    keys = face_edge_keys(T)
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     same = keys[1:] == keys[:-1]

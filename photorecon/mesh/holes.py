@@ -24,16 +24,13 @@ import numpy as np
 import trimesh
 from numba import njit
 
-from .geometry import face_areas
+from .geometry import edge_keys, face_areas, face_cross, face_edge_keys, triangle_components
 
 log = logging.getLogger("photorecon")
 
+# what fill_small_holes reports (and the cleaning, when it fills nothing)
+NO_FILL = {"holes": None, "filled_holes": 0, "filled_notches": 0, "filled_faces": 0, "kept_open": 0, "unseen": 0}
 MAX_FILL_FACES = 20_000  # about the most faces a patch over one hole gets (fill_loops' max_faces)
-
-
-def _edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
-    a, b = a.astype(np.int64), b.astype(np.int64)
-    return np.minimum(a, b) * n + np.maximum(a, b)
 
 
 def boundary_directed(faces: np.ndarray, n: int | None = None) -> np.ndarray:
@@ -43,7 +40,7 @@ def boundary_directed(faces: np.ndarray, n: int | None = None) -> np.ndarray:
         return np.zeros((0, 2), np.int64)
     n = int(F.max()) + 1 if n is None else n
     e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    k = _edge_keys(e[:, 0], e[:, 1], n)
+    k = face_edge_keys(F, n)
     _, inv, cnt = np.unique(k, return_inverse=True, return_counts=True)
     return e[cnt[inv.ravel()] == 1]
 
@@ -403,7 +400,7 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
         per_hole = np.maximum(target, np.sqrt(area / (0.4 * max_faces)))
         target = np.repeat(per_hole, [len(p) for p in pieces])
     # every edge of the observed mesh is locked (rims, and any chord the ear clipping could not avoid)
-    locked = np.unique(_edge_keys(rim_e[:, 0], rim_e[:, 1], len(Vs)))
+    locked = np.unique(edge_keys(rim_e[:, 0], rim_e[:, 1], len(Vs)))
     V, patch = _refine(Vs, patch, locked, target)
     V = _fair(V, F0, patch, n0, floor)
     V[:n0] = V0  # the observed surface exactly as it was
@@ -458,8 +455,6 @@ def filled_area(mesh: trimesh.Trimesh) -> float:
 def rim_normals(V: np.ndarray, F: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """Per vertex of ``vertices``: the unit normal of the faces around it (their area-weighted mean), (k, 3), as
     the faces are wound."""
-    from .geometry import face_cross
-
     n = len(V)
     want = np.zeros(n, bool)
     want[vertices] = True
@@ -600,8 +595,7 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
     facts: ``holes`` (rims found), ``filled_holes`` (whole holes), ``filled_notches``, ``filled_faces``,
     ``kept_open``, ``unseen`` (holes and notches left open for want of views)."""
     loops = boundary_loops(mesh.faces, len(mesh.vertices))
-    info = {"holes": len(loops), "filled_holes": 0, "filled_notches": 0, "filled_faces": 0, "kept_open": 0,
-            "unseen": 0}
+    info = {**NO_FILL, "holes": len(loops)}
     if not loops:
         out, _ = fill_loops(mesh, [])
         return out, info
@@ -618,17 +612,17 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
     cos_view = float(np.cos(np.radians(view_angle)))
     unseen = [0]
 
-    def seen(lp, u):
-        """At least min_views cameras within view_angle of the hole's outward normal (the rim's faces' side)."""
+    def seen(lp, u, st=None):
+        """At least min_views cameras within view_angle of the hole's outward normal (the rim's faces' side);
+        ``st``: the rim's ``hole_stats`` when the caller has them."""
         if cams is None:
             return True
-        P = V[lp]
-        st = hole_stats(V, [lp])
+        st = hole_stats(V, [lp]) if st is None else st
         if st["radius"][0] <= pinhole * max_radius:  # a pinhole: filled whatever the views
             return True
         n = st["normal"][0]
         n = n if float(u.sum(0) @ n) >= 0 else -n
-        d = cams - P.mean(0)
+        d = cams - V[lp].mean(0)
         ok = int(((d @ n) >= cos_view * np.linalg.norm(d, axis=1)).sum()) >= min_views
         unseen[0] += not ok
         return ok
@@ -637,7 +631,7 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
         st = hole_stats(V, [lp])
         agree = float(np.abs(u @ st["normal"][0]).mean())
         return (st["radius"][0] <= max_radius and st["offplane"][0] <= max_offplane and agree >= min_agree
-                and seen(lp, u))
+                and seen(lp, u, st))
 
     fill, n_whole, n_notches, n_kept = [], 0, 0, 0
     for j, lp in enumerate(loops):
@@ -687,7 +681,7 @@ def _drop_overused(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """``mesh`` without the faces that make an edge used by more than two (the later of them)."""
     F = np.asarray(mesh.faces, np.int64)
     n = len(mesh.vertices)
-    k = _edge_keys(np.concatenate([F[:, 0], F[:, 1], F[:, 2]]), np.concatenate([F[:, 1], F[:, 2], F[:, 0]]), n)
+    k = face_edge_keys(F, n)
     order = np.argsort(k, kind="stable")
     ks = k[order]
     first = np.r_[True, ks[1:] != ks[:-1]]
@@ -713,16 +707,13 @@ def _closed_components(mesh: trimesh.Trimesh, min_share: float = 0.5) -> trimesh
     """The components of ``mesh`` that are closed (every edge used by two faces), when they hold at least
     ``min_share`` of its area (else ``mesh`` as it is: the object itself stayed open, and a closed crumb is not
     its companion)."""
-    from .geometry import triangle_components
-
     F = np.asarray(mesh.faces, np.int64)
     labels, _ = triangle_components(np.asarray(mesh.vertices), F)
     e = boundary_directed(F, len(mesh.vertices))
     if not len(e):
         return mesh
     n = len(mesh.vertices)
-    fe = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    open_face = np.isin(_edge_keys(fe[:, 0], fe[:, 1], n), _edge_keys(e[:, 0], e[:, 1], n)).reshape(3, -1).any(0)
+    open_face = np.isin(face_edge_keys(F, n), edge_keys(e[:, 0], e[:, 1], n)).reshape(3, -1).any(0)
     open_comp = np.unique(labels[open_face])
     keep = ~np.isin(labels, open_comp)
     area = face_areas(np.asarray(mesh.vertices, np.float64), F)
