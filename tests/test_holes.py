@@ -195,3 +195,30 @@ def test_pinholes_filled_whatever_the_views():
     ring = np.stack([3 * np.cos(az), 3 * np.sin(az), np.zeros(12)], 1)
     out, info = fill_small_holes(holed, max_radius=0.3, centres=ring, pinhole=1.0)
     assert info["filled_holes"] == 2 and info["unseen"] == 0 and boundary_length(out) == 0.0
+
+
+def _directed_repeats(mesh):
+    """Edges run the same way by two faces: a face whose back shows beside its neighbour."""
+    F = np.asarray(mesh.faces, np.int64)
+    d = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    _, c = np.unique(d[:, 0] * len(mesh.vertices) + d[:, 1], return_counts=True)
+    return int((c > 1).sum())
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_swiss_cheese_closed_and_filled_facing_one_way(seed):
+    """A sphere with a third of its faces removed at random (rims that touch at vertices, diagonals that are
+    already edges of the mesh): the closed companion is watertight with every face wound the same way round
+    (outwards: its volume is the ball's), and the small-hole filling leaves no patch face back to front; the
+    observed faces stay, first and unchanged."""
+    rng = np.random.default_rng(seed)
+    s = trimesh.creation.icosphere(subdivisions=3)
+    F = np.asarray(s.faces)
+    holed = trimesh.Trimesh(s.vertices, F[rng.random(len(F)) >= 0.35], process=False)
+    closed = close_mesh(holed)
+    assert closed.is_watertight and closed.is_winding_consistent and _directed_repeats(closed) == 0
+    assert closed.volume == pytest.approx(4 / 3 * np.pi, rel=0.05)
+    assert np.array_equal(np.asarray(closed.faces)[:len(holed.faces)], np.asarray(holed.faces))
+    filled, info = fill_small_holes(holed, max_radius=0.3, max_angle=90.0, max_offplane=1.0)
+    assert info["filled_faces"] > 0 and _directed_repeats(filled) == 0
+    assert np.array_equal(np.asarray(filled.faces)[:len(holed.faces)], np.asarray(holed.faces))

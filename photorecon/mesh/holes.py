@@ -61,19 +61,23 @@ def boundary_loops(faces: np.ndarray, n: int | None = None) -> list[np.ndarray]:
     if not len(e):
         return []
     src, dst = e[:, 0].tolist(), e[:, 1].tolist()
-    inc: dict = {}
+    out_e: dict = {}
+    in_e: dict = {}
     for k, (a, b) in enumerate(zip(src, dst)):
-        inc.setdefault(a, []).append(k)
-        inc.setdefault(b, []).append(k)
+        out_e.setdefault(a, []).append(k)
+        in_e.setdefault(b, []).append(k)
     used = np.zeros(len(e), bool)
     loops: list[np.ndarray] = []
 
     def next_edge(v):
-        lst = inc.get(v)
-        while lst:
-            k = lst.pop()
-            if not used[k]:
-                return k
+        # the way the faces run first: where two rims touch at v, an edge into v followed by another edge into v
+        # would join them into one loop that runs half of its edges against the other half, and the patch
+        # over it would face the wrong way along that half
+        for lst in (out_e.get(v), in_e.get(v)):
+            while lst:
+                k = lst.pop()
+                if not used[k]:
+                    return k
         return -1
 
     def emit(cyc_v, cyc_e):
@@ -653,7 +657,9 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
         if pieces and len(rest) >= 3:
             if passes(rest, normal_at[rest]):
                 fill.append(rest)
-    out, nf = fill_loops(mesh, fill)
+    # a patch face on an edge the surface already uses twice, or run the surface's way, goes (a few per mesh)
+    out = _drop_overused(fill_loops(mesh, fill)[0], keep_before=len(mesh.faces))
+    nf = len(out.faces) - len(mesh.faces)
     info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf), kept_open=n_kept,
                 unseen=unseen[0])
     return out, info
@@ -677,18 +683,27 @@ def close_mesh(mesh: trimesh.Trimesh, floor=None, rounds: int = 4) -> trimesh.Tr
     return out
 
 
-def _drop_overused(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """``mesh`` without the faces that make an edge used by more than two (the later of them)."""
+def _drop_overused(mesh: trimesh.Trimesh, keep_before: int = 0) -> trimesh.Trimesh:
+    """``mesh`` without the faces that make an edge used by more than two, or by two that run it the same way
+    (a patch joined to the surface back to front): on each edge the earliest face is kept, and the earliest
+    later one that runs the edge against it; the faces added later lose out. Faces before ``keep_before``
+    stay whatever their edges."""
     F = np.asarray(mesh.faces, np.int64)
     n = len(mesh.vertices)
     k = face_edge_keys(F, n)
-    order = np.argsort(k, kind="stable")
-    ks = k[order]
+    fwd = np.concatenate([F[:, 0] < F[:, 1], F[:, 1] < F[:, 2], F[:, 2] < F[:, 0]])
+    fid = np.tile(np.arange(len(F)), 3)
+    order = np.lexsort((fid, k))  # by edge, then by face: the observed faces first
+    ks, fw = k[order], fwd[order]
     first = np.r_[True, ks[1:] != ks[:-1]]
-    rank = np.arange(len(ks)) - np.maximum.accumulate(np.where(first, np.arange(len(ks)), 0))
+    g0 = np.maximum.accumulate(np.where(first, np.arange(len(ks)), 0))  # where each edge's run starts
+    against = (fw != fw[g0]) & ~first
+    c = np.cumsum(against)
+    keep = first | (against & (c - c[g0] == 1))  # the first face against the edge's first
     bad = np.zeros(len(k), bool)
-    bad[order[rank >= 2]] = True
+    bad[order[~keep]] = True
     drop = bad.reshape(3, -1).any(0)
+    drop[:keep_before] = False
     if not drop.any():
         return mesh
     return _subset(mesh, ~drop)
