@@ -36,7 +36,7 @@ class CleanConfig:
     fill_max_angle: float = field(default=60.0, metadata={"help": "fill a hole only where the surface along its rim faces like the rim's plane: their mean angle at most this, degrees (90 = any)", "range": (0.0, 90.0)})
     fill_max_offplane: float = field(default=0.5, metadata={"help": "fill a hole only when its rim lies near a plane: no rim vertex farther from it than this fraction of the hole's radius", "range": (0.0, None)})
     fill_min_views: int = field(default=2, metadata={"help": "fill a hole only where at least this many cameras face it (within 60 degrees of its normal; 0 = any): the holes over 3 voxels no photo saw well stay open in mesh.ply", "range": (0, 10_000)})
-    closed: Literal["auto", "off"] = field(default="auto", metadata={"help": "auto: an object capture also gets mesh_closed.* (watertight: every hole filled, the support side closed); off: never"})
+    closed: Literal["auto", "off"] = field(default="auto", metadata={"help": "auto: an object capture also gets mesh_closed.* (watertight: every hole filled, the support side closed; an object whose surface is in pieces: one screened Poisson surface through them); off: never"})
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)", "range": (0, 2_000_000_000)})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units", "range": (None, None), "length": 6, "box": True, "metavar": "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"})

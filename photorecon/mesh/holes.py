@@ -11,7 +11,9 @@ and faces untouched.
    patch continues the surface's slope across the rim (Liepa, "Filling holes in meshes", SGP 2003), where a
    membrane would cut flat across it.
 3. ``fill_small_holes`` (the cleaning stage's ``mesh.ply``) and ``close_mesh`` (the closed companion of an object,
-   ``mesh_closed.ply``) on top.
+   ``mesh_closed.ply``) on top. An object whose surface came out in pieces (a dark, rough one: its largest piece
+   under 90% of the area) is closed as one screened Poisson surface through them instead (``poisson_closed``):
+   closing each piece on its own would give a heap of closed crumbs.
 
 Both mark what they added: ``vertex_attributes["filled"]`` (1 on a patch's new vertices, 0 elsewhere) and
 ``face_attributes["filled"]`` (1 on patch faces), written to PLY as ``filled`` properties.
@@ -763,13 +765,88 @@ def support_floor(metadata: dict):
     return n / np.linalg.norm(n), float(off)
 
 
-def closed_companion(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, dict]:
-    """The watertight companion of an object's cleaned mesh (``close_mesh``; the patch over the support side
-    kept above the support plane, when the mesh's metadata holds one) and its facts: ``watertight``,
-    ``filled_area`` (every patch: the cleaning's and this one's), ``faces``, ``vertices``."""
-    closed = close_mesh(mesh, floor=support_floor(mesh.metadata))
+def main_share(mesh: trimesh.Trimesh) -> float:
+    """The share of ``mesh``'s area in its largest connected piece (faces joined by edges)."""
+    V, F = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    if not len(F):
+        return 0.0
+    labels, _ = triangle_components(V, F)
+    area = np.bincount(labels, face_areas(V, F))
+    return float(area.max() / max(area.sum(), 1e-300))
+
+
+def poisson_closed(mesh: trimesh.Trimesh, floor=None) -> trimesh.Trimesh:
+    """One closed surface through an object's surface pieces: screened Poisson (Open3D) over ``mesh``'s
+    vertices with their normals, at an octree cell of about two of its median edges, the largest piece kept,
+    vertices below the ``floor`` plane (n, c) moved onto it; colours from the nearest vertex of ``mesh``; vertices
+    farther than a cell from its surface (and faces with two such vertices) marked ``filled``. For an object whose
+    surface came out in pieces, which ``close_mesh`` would close one by one into crumbs."""
+    import open3d as o3d
+    import open3d.core as o3c
+    from scipy.spatial import cKDTree
+
+    from .clean import from_open3d, raycasting_scene
+
+    V = np.asarray(mesh.vertices, np.float64)
+    F = np.asarray(mesh.faces, np.int64)
+    used = np.unique(F)
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    edge = float(np.median(np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)))
+    N = np.asarray(mesh.vertex_normals, np.float64)[used]
+    good = np.isfinite(N).all(1) & (np.linalg.norm(N, axis=1) > 0.5)  # a vertex of degenerate faces has none
+    used, N = used[good], N[good]
+    P = V[used]
+    extent = float((P.max(0) - P.min(0)).max()) * 1.1  # Open3D's octree: the points' cube, scale 1.1
+    depth = int(np.clip(np.ceil(np.log2(extent / (2 * edge))), 5, 10))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
+    cloud.normals = o3d.utility.Vector3dVector(N)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, n_threads=-1)
+    m.remove_duplicated_vertices()
+    labels, counts, _ = m.cluster_connected_triangles()
+    if len(counts) > 1:
+        m.remove_triangles_by_mask(np.asarray(labels) != int(np.argmax(counts)))
+        m.remove_unreferenced_vertices()
+    m.remove_non_manifold_edges()
+    out = from_open3d(m)
+    X = np.asarray(out.vertices, np.float64).copy()
+    if floor is not None:
+        n, c = floor
+        below = X @ n < c
+        X[below] -= np.outer(X[below] @ n - c, n)
+    cell = extent / 2 ** depth
+    _, near = cKDTree(P).query(X, k=1)
+    dist = raycasting_scene(mesh).compute_distance(o3c.Tensor(X.astype(np.float32))).numpy()
+    colors = _colors(mesh)
+    out = trimesh.Trimesh(X, out.faces, vertex_colors=None if colors is None else np.asarray(colors)[used][near],
+                          process=False)
+    if out.volume < 0:
+        out.invert()
+    vf = (dist > cell).astype(np.uint8)
+    _mark(out, vf, (vf[np.asarray(out.faces)].sum(1) >= 2).astype(np.uint8))
+    out.metadata.update(mesh.metadata)
+    if not out.is_watertight:  # rims where the octree's box cut the surface
+        out = close_mesh(out, floor=floor)
+    log.info("closed mesh: the object's surface is in pieces; screened Poisson over its %d vertices (depth %d)",
+             len(P), depth)
+    return out
+
+
+def closed_companion(mesh: trimesh.Trimesh, min_share: float = 0.9) -> tuple[trimesh.Trimesh, dict]:
+    """The watertight companion of an object's cleaned mesh and its facts: ``watertight``, ``filled_area``
+    (every patch: the cleaning's and this one's), ``faces``, ``vertices``, ``method``. ``close_mesh`` (the
+    observed surface kept, the patch over the support side kept above the support plane when the mesh's metadata
+    holds one), unless its largest piece holds less than ``min_share`` of its area: then ``poisson_closed``
+    (closing each piece would give a heap of closed crumbs, not the object)."""
+    floor = support_floor(mesh.metadata)
+    share = main_share(mesh)
+    if share >= min_share:
+        closed, method = close_mesh(mesh, floor=floor), "holes"
+    else:
+        closed, method = poisson_closed(mesh, floor=floor), "poisson"
     info = {"watertight": bool(closed.is_watertight), "filled_area": filled_area(closed),
-            "vertices": len(closed.vertices), "faces": len(closed.faces)}
+            "vertices": len(closed.vertices), "faces": len(closed.faces), "method": method,
+            "main_piece_share": round(share, 4)}
     if not info["watertight"]:
         log.warning("closed mesh: %d boundary edges left after filling every hole (edges used by more than two "
                     "faces, or rims that cross themselves); written anyway", len(boundary_directed(closed.faces)))
