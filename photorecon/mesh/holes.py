@@ -152,15 +152,26 @@ def _ear_clip(xy, P3, chords, max_tries=48):
     sgn = 1.0 if area >= 0 else -1.0
     m = n
     t = 0
+    # each corner's diagonal length, kept up to date as ears go (only the two corners beside an ear change)
+    d = np.empty(n)
+    for k in range(n):
+        a, c = idx[(k - 1) % n], idx[(k + 1) % n]
+        d[k] = np.sqrt(((P3[a] - P3[c]) ** 2).sum())
+    tried = np.zeros(n, np.bool_)
+    tl = np.empty(max_tries, np.int64)
     while m > 3:
-        d = np.empty(m)
-        for k in range(m):
-            a, c = idx[(k - 1) % m], idx[(k + 1) % m]
-            d[k] = np.sqrt(((P3[a] - P3[c]) ** 2).sum())
-        order = np.argsort(d)
         pick, fallback_convex, fallback_any = -1, -1, -1
+        nt = 0
         for q in range(min(m, max_tries)):  # a long rim whose projection folds: bounded work per ear
-            k = order[q]
+            k = -1  # the shortest diagonal not tried yet
+            bd = np.inf
+            for r in range(m):
+                if not tried[r] and d[r] < bd:
+                    bd = d[r]
+                    k = r
+            tried[k] = True
+            tl[nt] = k
+            nt += 1
             a, b, c = idx[(k - 1) % m], idx[k], idx[(k + 1) % m]
             lo, hi = min(a, c), max(a, c)
             key = lo * n + hi
@@ -191,13 +202,19 @@ def _ear_clip(xy, P3, chords, max_tries=48):
             if not inside:
                 pick = k
                 break
+        for q in range(nt):
+            tried[tl[q]] = False
         if pick < 0:
-            pick = fallback_convex if fallback_convex >= 0 else (fallback_any if fallback_any >= 0 else order[0])
+            pick = fallback_convex if fallback_convex >= 0 else (fallback_any if fallback_any >= 0 else tl[0])
         out[t, 0], out[t, 1], out[t, 2] = idx[(pick - 1) % m], idx[pick], idx[(pick + 1) % m]
         t += 1
         for k in range(pick, m - 1):
             idx[k] = idx[k + 1]
+            d[k] = d[k + 1]
         m -= 1
+        for k in ((pick - 1) % m, pick % m):  # the ear's two neighbours, now next to each other
+            a, c = idx[(k - 1) % m], idx[(k + 1) % m]
+            d[k] = np.sqrt(((P3[a] - P3[c]) ** 2).sum())
     if m == 3:
         out[t, 0], out[t, 1], out[t, 2] = idx[0], idx[1], idx[2]
     return out
