@@ -25,8 +25,7 @@ from .frames import (FrameStore, _resize_to, _sample_depth_points, depth_view, f
 from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
 from .legacy import legacy_article_fuse
 from .points import _area_samples, _point_cloud, observed_distance, observed_points, oriented_points, surface_report
-from .poisson import (_close, _fair_patch, _largest_component, _orient_patches, _patch_colors, _poisson, _supported,
-                      poisson_fuse)
+from .poisson import _close, _fair_patch, _orient_patches, _patch_colors, _supported, poisson_fuse
 from .tsdf import (_available_bytes, _band_block_keys, _chunk_size, _depth_max, _extract, _frame_blocks, _grid_bytes,
                    _in_box, _integrate_blocks, _integrate_frame, _integrate_weighted, _new_grid, _normal_band_blocks,
                    _tsdf_weighted_kernel, estimate_blocks, estimate_faces, planar_normals, stitch_pieces, tsdf_fuse, tsdf_voxel_size)

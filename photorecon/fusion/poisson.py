@@ -23,33 +23,12 @@ from .points import _point_cloud
 log = logging.getLogger("photorecon")
 
 
-def _poisson(cloud, depth: int):
-    import open3d as o3d
-
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=int(depth), n_threads=-1)
-    return mesh, np.asarray(density)
-
-
-def _largest_component(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    from ..mesh import from_open3d, to_open3d
-
-    m = to_open3d(mesh)
-    m.remove_duplicated_vertices()
-    labels, counts, _ = m.cluster_connected_triangles()
-    labels = np.asarray(labels)
-    if len(counts) > 1:
-        m.remove_triangles_by_mask(labels != int(np.argmax(counts)))
-        m.remove_unreferenced_vertices()
-    return from_open3d(m)
-
-
 def poisson_fuse(frames: list[DepthFrame], cfg: FusionConfig) -> trimesh.Trimesh:
     """Screened Poisson surface from the frames' oriented points (see the module docstring), trimmed by
     sample density, or (``cfg.watertight``) closed into one watertight surface.
 
     ``metadata``: ``mesher`` "poisson", ``poisson_cell`` (the octree cell, scene units), ``poisson_depth``."""
-    from ..mesh import from_open3d
+    from ..mesh import from_open3d, poisson_surface
 
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     if not frames:
@@ -65,7 +44,7 @@ def poisson_fuse(frames: list[DepthFrame], cfg: FusionConfig) -> trimesh.Trimesh
         raise BadArgumentError(f"poisson trim: expected a density quantile in [0, 1), got {cfg.poisson_trim}")
     cell = extent / 2 ** depth
     log.info("poisson: %d oriented points, octree depth %d (cell %.4g)", len(pts), depth, cell)
-    mesh, density = _poisson(cloud, depth)
+    mesh, density = poisson_surface(cloud, depth)
     if len(mesh.triangles) == 0:
         raise EmptyMeshError("Poisson reconstruction produced no triangle: check that the depth maps and poses agree")
     if cfg.poisson_trim > 0:
@@ -102,9 +81,9 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     largest component kept."""
     import open3d as o3d
 
-    from ..mesh import fill_holes, from_open3d, to_open3d
+    from ..mesh import fill_holes, from_open3d, largest_piece, poisson_surface, to_open3d
 
-    open_mesh = _largest_component(open_mesh)
+    open_mesh = largest_piece(open_mesh)
     diag = float(np.linalg.norm(open_mesh.bounds[1] - open_mesh.bounds[0]))
     filled = fill_holes(open_mesh, diag)
     patch_faces = filled.faces[len(open_mesh.faces):] if len(filled.faces) > len(open_mesh.faces) else np.zeros((0, 3), int)
@@ -128,8 +107,7 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
         if extra:
             cols = np.vstack([cols, _patch_colors(open_mesh, patch, cloud, sp, fi)])
         c2.colors = o3d.utility.Vector3dVector(cols)
-    mesh, _ = _poisson(c2, depth)
-    out = _largest_component(from_open3d(mesh))
+    out = largest_piece(poisson_surface(c2, depth)[0])
     if not out.is_watertight:  # rims where the surface met the octree's box, or an edge of more than two faces
         m = to_open3d(out)
         m.remove_non_manifold_edges()

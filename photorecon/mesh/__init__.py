@@ -16,7 +16,7 @@ caller's back.
 """
 from .geometry import face_areas, face_centres, face_cross
 from .clean import (CleanConfig, boundary_edges, clean, clean_open3d, edge_use_counts, fill_holes, floater_mask, from_open3d,
-                    harmonic_fill, log, raycasting_scene, simplify, to_open3d, triangle_components, _linked,
+                    harmonic_fill, largest_piece, log, poisson_surface, raycasting_scene, simplify, to_open3d, triangle_components, _linked,
                     _vertex_colors, _weighted_percentile)
 from .holes import (boundary_length, boundary_loops, close_mesh, closed_companion, fill_loops, fill_small_holes,
                     filled_area)
@@ -28,5 +28,5 @@ __all__ = ["CleanConfig", "MESH_FORMATS", "MESH_SUFFIXES", "boundary_edges", "bo
            "clean", "close_mesh", "closed_companion", "fill_loops", "fill_small_holes", "filled_area", "clean_open3d", "edge_use_counts",
            "export", "face_areas", "face_centres", "face_cross",
            "fill_holes", "find_support", "find_support_plane", "floater_mask", "from_open3d", "harmonic_fill",
-           "load_mesh", "parse_formats", "ransac_plane", "raycasting_scene", "remove_support", "simplify",
+           "largest_piece", "load_mesh", "parse_formats", "poisson_surface", "ransac_plane", "raycasting_scene", "remove_support", "simplify",
            "to_open3d", "triangle_components"]

@@ -35,7 +35,7 @@ class CleanConfig:
     fill_object_voxels: float = field(default=0.0, metadata={"help": "TSDF meshes of an object capture: fill holes up to this radius, voxels (0 = as --fill-holes-voxels)", "range": (0.0, 100_000.0)})
     fill_max_angle: float = field(default=60.0, metadata={"help": "fill a hole only where the surface along its rim faces like the rim's plane: their mean angle at most this, degrees (90 = any)", "range": (0.0, 90.0)})
     fill_max_offplane: float = field(default=0.5, metadata={"help": "fill a hole only when its rim lies near a plane: no rim vertex farther from it than this fraction of the hole's radius", "range": (0.0, None)})
-    fill_min_views: int = field(default=2, metadata={"help": "fill a hole only where at least this many cameras face it (within 60 degrees of its normal; 0 = any): the holes over 3 voxels no photo saw well stay open in mesh.ply", "range": (0, 10_000)})
+    fill_min_views: int = field(default=2, metadata={"help": "fill a hole only where at least this many cameras face it (within 60 degrees of its normal; 0 = any): the holes no photo saw well stay open in mesh.ply, but for pinholes up to a third of the fill radius", "range": (0, 10_000)})
     closed: Literal["auto", "off"] = field(default="auto", metadata={"help": "auto: an object capture also gets mesh_closed.* (watertight: every hole filled, the support side closed; an object whose surface is in pieces: one screened Poisson surface through them); off: never"})
     target_faces: int = field(default=0, metadata={"help": "quadric decimation to this many faces (0 = off)", "range": (0, 2_000_000_000)})
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
@@ -81,6 +81,33 @@ def raycasting_scene(mesh: trimesh.Trimesh):
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(t)
     return scene
+
+
+def poisson_surface(cloud, depth: int):
+    """Screened Poisson surface reconstruction (Open3D) of the oriented point ``cloud`` at octree ``depth``:
+    (Open3D mesh, per-vertex sample density)."""
+    import open3d as o3d
+
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=int(depth), n_threads=-1)
+    return mesh, np.asarray(density)
+
+
+def largest_piece(mesh, manifold: bool = False) -> trimesh.Trimesh:
+    """The largest connected piece (by triangles) of ``mesh`` (trimesh or Open3D), duplicated vertices merged,
+    as a trimesh; ``manifold``: also without the faces that make an edge non-manifold (Open3D's rule)."""
+    import open3d as o3d
+
+    m = mesh if isinstance(mesh, o3d.geometry.TriangleMesh) else to_open3d(mesh)
+    m.remove_duplicated_vertices()
+    labels, counts, _ = m.cluster_connected_triangles()
+    labels = np.asarray(labels)
+    if len(counts) > 1:
+        m.remove_triangles_by_mask(labels != int(np.argmax(counts)))
+        m.remove_unreferenced_vertices()
+    if manifold:
+        m.remove_non_manifold_edges()
+    return from_open3d(m)
 
 
 def from_open3d(m, block: int = 1 << 20) -> trimesh.Trimesh:

@@ -40,6 +40,13 @@ def edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
     return np.minimum(a, b) * n + np.maximum(a, b)
 
 
+def face_edges(T: np.ndarray) -> np.ndarray:
+    """Every face's edges as the face runs them (3F, 2): the edges (0, 1) of all faces, then (1, 2), then (2, 0)
+    (the order of ``face_edge_keys``)."""
+    T = np.asarray(T)
+    return np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]])
+
+
 def face_edge_keys(T: np.ndarray, n: int | None = None) -> np.ndarray:
     """``edge_keys`` of every face's edges (3F,): the edges (0, 1) of all faces, then (1, 2), then (2, 0)."""
     T = np.asarray(T)

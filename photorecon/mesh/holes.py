@@ -26,7 +26,7 @@ import numpy as np
 import trimesh
 from numba import njit
 
-from .geometry import edge_keys, face_areas, face_cross, face_edge_keys, triangle_components
+from .geometry import edge_keys, face_areas, face_cross, face_edge_keys, face_edges, triangle_components
 
 log = logging.getLogger("photorecon")
 
@@ -41,7 +41,7 @@ def boundary_directed(faces: np.ndarray, n: int | None = None) -> np.ndarray:
     if not len(F):
         return np.zeros((0, 2), np.int64)
     n = int(F.max()) + 1 if n is None else n
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    e = face_edges(F)
     k = face_edge_keys(F, n)
     _, inv, cnt = np.unique(k, return_inverse=True, return_counts=True)
     return e[cnt[inv.ravel()] == 1]
@@ -339,7 +339,7 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
     loc[used] = np.arange(len(used))
     G = loc[G]
     m = len(used)
-    e = np.concatenate([G[:, [0, 1]], G[:, [1, 2]], G[:, [2, 0]]])
+    e = face_edges(G)
     e = np.concatenate([e, e[:, ::-1]])
     A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m)).tocsr()
     A.data[:] = 1.0
@@ -401,7 +401,7 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
     for lp in loops:
         in_loop[lp] = True
     # the mesh's edges between rim vertices (a diagonal along one would be used by three faces)
-    e = np.concatenate([F0[:, [0, 1]], F0[:, [1, 2]], F0[:, [2, 0]]])
+    e = face_edges(F0)
     e = e[in_loop[e[:, 0]] & in_loop[e[:, 1]]]
     edge_set: dict = {}
     for a, b in e.tolist():
@@ -431,7 +431,7 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
     if colors is not None and len(V) > n0:
         from .clean import harmonic_fill
 
-        pe = np.concatenate([patch[:, [0, 1]], patch[:, [1, 2]], patch[:, [2, 0]]])
+        pe = face_edges(patch)
         known = np.unique(patch[patch < n0])
         # a graph of the patch vertices only (the rims known)
         used = np.unique(patch)
@@ -677,7 +677,7 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
             if passes(rest, normal_at[rest]):
                 fill.append(rest)
     # a patch face on an edge the surface already uses twice, or run the surface's way, goes (a few per mesh)
-    out = _drop_overused(fill_loops(mesh, fill)[0], keep_before=len(mesh.faces))
+    out = _drop_overused(fill_loops(mesh, fill)[0], new_from=len(mesh.faces))
     nf = len(out.faces) - len(mesh.faces)
     info.update(filled_holes=n_whole, filled_notches=n_notches, filled_faces=int(nf), kept_open=n_kept,
                 unseen=unseen[0])
@@ -687,8 +687,8 @@ def fill_small_holes(mesh: trimesh.Trimesh, max_radius: float, max_offplane: flo
 def close_mesh(mesh: trimesh.Trimesh, floor=None, rounds: int = 4) -> trimesh.Trimesh:
     """A watertight companion of ``mesh``: every hole filled (``fill_loops``, new vertices kept above the
     ``floor`` plane (n, c) when given: an object's support; from the second round, rims that reopened are
-    closed by fans around a new centre vertex). Edges used by more than two faces lose their extra
-    faces first (the ones added last), and components that stay open after ``rounds`` are dropped when the
+    closed by fans around a new centre vertex). Edges used by more than two faces, or run the same way by two,
+    lose the faces added last (``_drop_overused``), and components that stay open after ``rounds`` are dropped when the
     closed ones hold most of the surface. ``is_watertight`` tells whether it worked."""
     out = _drop_overused(mesh)
     for r in range(rounds):
@@ -696,22 +696,27 @@ def close_mesh(mesh: trimesh.Trimesh, floor=None, rounds: int = 4) -> trimesh.Tr
         if not loops:
             break
         # from the second round the rims left are those whose ear clipping repeated an edge: fans
-        out = _drop_overused(fill_loops(out, loops, floor=floor, fan=r > 0)[0])
+        out = _drop_overused(fill_loops(out, loops, floor=floor, fan=r > 0)[0], new_from=len(out.faces))
     if not out.is_watertight:
         out = _closed_components(out)
     return out
 
 
-def _drop_overused(mesh: trimesh.Trimesh, keep_before: int = 0) -> trimesh.Trimesh:
+def _drop_overused(mesh: trimesh.Trimesh, new_from: int = 0) -> trimesh.Trimesh:
     """``mesh`` without the faces that make an edge used by more than two, or by two that run it the same way
     (a patch joined to the surface back to front): on each edge the earliest face is kept, and the earliest
-    later one that runs the edge against it; the faces added later lose out. Faces before ``keep_before``
-    stay whatever their edges."""
+    later one that runs the edge against it; the faces added later lose out. ``new_from``: the faces before it
+    are settled (the observed surface, or what an earlier pass left) and stay; only the edges of the faces from
+    it on are looked at."""
     F = np.asarray(mesh.faces, np.int64)
     n = len(mesh.vertices)
     k = face_edge_keys(F, n)
-    fwd = np.concatenate([F[:, 0] < F[:, 1], F[:, 1] < F[:, 2], F[:, 2] < F[:, 0]])
+    e = face_edges(F)
+    fwd = e[:, 0] < e[:, 1]
     fid = np.tile(np.arange(len(F)), 3)
+    if new_from > 0:  # the edges the new faces use, with every face on them
+        on = np.isin(k, k[fid >= new_from])
+        k, fwd, fid = k[on], fwd[on], fid[on]
     order = np.lexsort((fid, k))  # by edge, then by face: the observed faces first
     ks, fw = k[order], fwd[order]
     first = np.r_[True, ks[1:] != ks[:-1]]
@@ -719,10 +724,9 @@ def _drop_overused(mesh: trimesh.Trimesh, keep_before: int = 0) -> trimesh.Trime
     against = (fw != fw[g0]) & ~first
     c = np.cumsum(against)
     keep = first | (against & (c - c[g0] == 1))  # the first face against the edge's first
-    bad = np.zeros(len(k), bool)
-    bad[order[~keep]] = True
-    drop = bad.reshape(3, -1).any(0)
-    drop[:keep_before] = False
+    drop = np.zeros(len(F), bool)
+    drop[fid[order[~keep]]] = True
+    drop[:new_from] = False
     if not drop.any():
         return mesh
     return _subset(mesh, ~drop)
@@ -802,12 +806,12 @@ def poisson_closed(mesh: trimesh.Trimesh, floor=None) -> trimesh.Trimesh:
     import open3d.core as o3c
     from scipy.spatial import cKDTree
 
-    from .clean import from_open3d, raycasting_scene
+    from .clean import largest_piece, poisson_surface, raycasting_scene
 
     V = np.asarray(mesh.vertices, np.float64)
     F = np.asarray(mesh.faces, np.int64)
     used = np.unique(F)
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    e = face_edges(F)
     edge = float(np.median(np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)))
     N = np.asarray(mesh.vertex_normals, np.float64)[used]
     good = np.isfinite(N).all(1) & (np.linalg.norm(N, axis=1) > 0.5)  # a vertex of degenerate faces has none
@@ -817,15 +821,7 @@ def poisson_closed(mesh: trimesh.Trimesh, floor=None) -> trimesh.Trimesh:
     depth = int(np.clip(np.ceil(np.log2(extent / (2 * edge))), 5, 10))
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(P))
     cloud.normals = o3d.utility.Vector3dVector(N)
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        m, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, n_threads=-1)
-    m.remove_duplicated_vertices()
-    labels, counts, _ = m.cluster_connected_triangles()
-    if len(counts) > 1:
-        m.remove_triangles_by_mask(np.asarray(labels) != int(np.argmax(counts)))
-        m.remove_unreferenced_vertices()
-    m.remove_non_manifold_edges()
-    out = from_open3d(m)
+    out = largest_piece(poisson_surface(cloud, depth)[0], manifold=True)
     X = np.asarray(out.vertices, np.float64).copy()
     if floor is not None:
         n, c = floor
