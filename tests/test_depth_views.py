@@ -156,3 +156,52 @@ def test_coarse_depth_choice_covers_the_surface_it_hides_with_fewer_views():
     well = seen.sum(0) >= 3
     assert (seen[chosen][:, well].sum(0) >= 3).mean() >= 0.94
     assert (seen[chosen][:, well].sum(0) >= 2).mean() >= 0.98
+
+
+def _short_tracks(model, keep: int, seed: int = 0):
+    """``model`` with each sparse point observed by at most ``keep`` of the views that observe it (chosen at
+    random), as the short tracks of a handheld capture of a shiny object."""
+    rng = np.random.default_rng(seed)
+    viewers: dict = {}
+    for name, (_, ids) in model.observations.items():
+        for i in ids:
+            viewers.setdefault(int(i), []).append(name)
+    kept = {(i, n) for i, names in viewers.items()
+            for n in rng.permutation(names)[:keep]}
+    obs = {}
+    for name, (uv, ids) in model.observations.items():
+        m = np.array([(int(i), name) in kept for i in ids], bool)
+        obs[name] = (uv[m], ids[m])
+    return replace(model, observations=obs)
+
+
+def test_large_capture_auto_also_covers_the_coarse_surface(tmp_path):
+    """``--depth-views auto`` on 40 or more views: after the sparse points' cover, PatchMatch's coarsest round
+    for the views it kept and the cover of that dense surface among them; the depth maps written are that
+    choice's, and fusing them gives the object's surface."""
+    from photorecon.depth.config import MVS_PRESETS
+    from photorecon.depth.mvs import run_mvs
+    from photorecon.depth.views import COARSE_MIN_VIEWS
+    from photorecon.fusion import FusionConfig, fuse, load_frames
+    from photorecon.io.dataset import Dataset
+    from photorecon.metrics import mesh_metrics
+    from photorecon.synthetic import synthesize
+
+    data = tmp_path / "data"
+    synthesize(SynthConfig(scene="blob", views=COARSE_MIN_VIEWS + 8, width=96, height=72, points=3000, seed=3), data)
+    ds = Dataset.open(data)
+    ds = replace(ds, model=_short_tracks(ds.model, 3))  # as a handheld capture's: few views observe each point
+    cfg = MVSConfig(**MVS_PRESETS["fast"])
+    sparse = choose_depth_views(ds.model, cfg)
+    assert len(sparse.chosen) >= COARSE_MIN_VIEWS  # the short tracks ask for nearly every view
+    rep = run_mvs(ds, tmp_path / "depth", cfg)
+    dv = rep.depth_views
+    assert dv["reason"] == "coverage, then coarse depth coverage" and dv["of"] == COARSE_MIN_VIEWS + 8
+    assert dv["chosen"] < len(sparse.chosen) and dv["surface_samples"] > 0
+    written = {p.name[:-4] for p in (tmp_path / "depth").glob("*.npy") if p.name.count(".") == 1}
+    assert rep.views == len(written) and len(written) >= 0.9 * dv["chosen"]
+    dsd = Dataset.open(data, depth_dir=tmp_path / "depth")
+    frames = load_frames(dsd, FusionConfig(), [v for v in dsd.views if dsd.has_depth(v)])
+    m = mesh_metrics(fuse(frames, FusionConfig(trunc_voxels=3.0), dsd.model.points),
+                     trimesh.load(data / "gt_mesh.ply", process=False), n_samples=20_000)
+    assert m.fscore >= 0.95, m  # 1.000 measured

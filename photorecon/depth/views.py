@@ -144,6 +144,10 @@ COARSE_SAMPLES_PER_VIEW = 1000  # about this many samples per view's coarse dept
 COARSE_DEPTH_TOL_PX = 3.0  # a sample is visible in a view whose coarse depth there is within this many pixel footprints
 COARSE_MAX_VIEW_ANGLE_DEG = 65.0  # ... and whose ray makes at most this angle with the sample's normal
 COARSE_COVER_FRACTION = 0.98  # the cover stops when this fraction of the samples have all the views they need
+# --depth-views auto: after the sparse points' cover, the coarse depth maps' cover too when at least this many views
+# are left: a capture that large is redundant enough for its sparse tracks (a handheld set's are short) to
+# understate what each photo sees, and the coarse round, reused by the views chosen, costs only where views are dropped
+COARSE_MIN_VIEWS = 40
 
 
 def _coarse_samples(lv, depth: np.ndarray, normal: np.ndarray, cost: np.ndarray):
@@ -178,9 +182,10 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
     within ``RESOLUTION_RATIO`` of the finest view's; then the greedy cover of ``choose_depth_views`` (each
     sample by ``cfg.depth_view_coverage`` chosen views) until ``COARSE_COVER_FRACTION`` of the samples are
     covered, as CMVS's coverage ratio: the last few samples, seen well by two or three views at the edge of
-    their angle or resolution, would each ask for a view of their own. A sample that no other view's coarse
-    depth confirms needs no cover (a coarse mismatch). Views without a coarse map are kept (the depth stage
-    judges them)."""
+    their angle or resolution, would each ask for a view of their own. A sample that fewer other views' coarse
+    depths confirm than the geometric filter will ask of a depth (``cfg.min_consistent``, at least one) needs no
+    cover: a coarse mismatch, or surface the filter would not keep. Views without a coarse map are kept (the
+    depth stage judges them)."""
     names = [v.name for v in views]
     pts, nrm, spacing = [], [], []
     for name in names:
@@ -229,7 +234,9 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
         u.append(ray[good])
         foot.append(zf[good] / (0.5 * (v.intrinsics.fx + v.intrinsics.fy)))
     vi, pi, u, foot = (np.concatenate(a) for a in (vi, pi, u, foot))
-    real = confirmed[pi] >= 2  # a sample no other view's coarse depth confirms is a mismatch: nothing to cover
+    # a sample fewer other views' coarse depths confirm than the geometric filter will ask of its depth (at least
+    # one) is a coarse mismatch, or surface the filter would not keep: nothing to cover
+    real = confirmed[pi] >= 1 + max(1, int(cfg.min_consistent))
     vi, pi, u, foot = vi[real], pi[real], u[real], foot[real]
     n_pts, n_views = len(P), len(views)
     finest = np.full(n_pts, np.inf)
