@@ -1,5 +1,5 @@
 """Hole filling that leaves the observed surface as it is: each hole's rim (a loop of boundary edges) is
-triangulated, the patch refined to edges like the rim's and its new vertices faired, the surface's own vertices
+triangulated, the patch refined to faces about as large as the surface's own and its new vertices faired, the surface's own vertices
 and faces untouched.
 
 1. ``boundary_loops``: the rims, as simple loops of vertices (a vertex where two holes touch splits them).
@@ -379,7 +379,8 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
                target: float | None = None, floor=None, max_faces: int = MAX_FILL_FACES,
                fan: bool = False) -> tuple[trimesh.Trimesh, int]:
     """``mesh`` with the holes of ``loops`` (``boundary_loops``) closed: ear-clipped, refined to edges of about
-    ``target`` (default: the median rim edge; longer over a hole whose patch would otherwise take more than
+    ``target`` (default: faces as large as the mesh's median face, or edges as long as the median rim edge
+    where those are longer; longer over a hole whose patch would otherwise take more than
     about ``max_faces`` faces: a patch carries no detail, and an opening as wide as the object, refined to its
     rim's edges, took most of a million vertices to fair), faired (``_fair``). ``fan``: each rim joined to a new
     vertex at its centre instead of ear-clipped (a rim whose every diagonal is already an edge of the mesh). The mesh's vertices and faces come first and
@@ -416,8 +417,9 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
         pieces = [_triangulate(V0, lp, nr, edge_set) for lp, nr in zip(loops, normals)]
     patch = np.concatenate(pieces)
     rim_e = np.concatenate([np.stack([lp, np.roll(lp, -1)], 1) for lp in loops])
-    if target is None:
-        target = float(np.median(np.linalg.norm(V0[rim_e[:, 0]] - V0[rim_e[:, 1]], axis=1)))
+    if target is None:  # patch faces as large as the surface's own (red-green splits: about 0.4 target^2 a face)
+        target = float(np.sqrt(np.median(face_areas(V0, F0)) / 0.4)) if len(F0) else 0.0
+        target = max(target, float(np.median(np.linalg.norm(V0[rim_e[:, 0]] - V0[rim_e[:, 1]], axis=1))))
     if max_faces > 0:  # red-green splits leave edges of 2/3 to 4/3 target: about 0.4 target^2 a face
         area = np.array([face_areas(Vs, p).sum() for p in pieces])
         per_hole = np.maximum(target, np.sqrt(area / (0.4 * max_faces)))
