@@ -55,9 +55,11 @@ def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np
 
 # Marching cubes' faces per voxel block that the surface crosses (a block of 16^3 voxels; measured: 300 on the
 # synthetic blob at two voxel sizes), and the fusion's peak bytes per face of the mesh: extraction, stitching,
-# the Open3D copy and its cleaning (measured: 200 on Herz-Jesu-P8).
+# the Open3D copy, its cleaning and hole filling (measured: 200 on Herz-Jesu-P8 before holes were filled; with
+# hole filling, gold_cape's open scene peaked at 2.1 GB for 5.2 M faces estimated at 200, of which about 0.35 GB
+# is the process without a mesh: about 330 a face)
 FACES_PER_SURFACE_BLOCK = 540
-MESH_BYTES_PER_FACE = 200
+MESH_BYTES_PER_FACE = 300
 
 
 def estimate_faces(frames: list[DepthFrame], voxel: float) -> int:
