@@ -56,7 +56,7 @@ from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_c
 from .select import DEPTH_RANGE_FACTORS, camera_depth_range, depth_range, select_sources
 from .sweep import plane_sweep
 from ..fields import check_config, expect_config
-from .views import COARSE_MIN_VIEWS, ViewChoice, choose_depth_views, coarse_depth_views
+from .views import ViewChoice, choose_depth_views, coarse_depth_views, wants_coarse_cover
 
 log = logging.getLogger("photorecon")
 
@@ -490,15 +490,13 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     no_points = len(model.points) == 0
     if no_points:
         log.warning("mvs: the camera model has no sparse points; depth ranges are guessed from the cameras")
-    # --depth-views coarse (and auto on a large capture, after the sparse points' cover): every view's coarsest
-    # PatchMatch round first, the views chosen from that surface
+    # the views that get depth maps: the sparse points' cover, then (--depth-views coarse, or auto on a large
+    # capture: views.wants_coarse_cover) every view's coarsest PatchMatch round and the cover of that surface
     can_coarse = cfg.method == "patchmatch" and len(_pm_rounds(cfg)) > 1
-    coarse = can_coarse and cfg.depth_views == "coarse"
-    sparse_choice = None if coarse else choose_depth_views(model, cfg)
-    choice = sparse_choice
-    if sparse_choice is not None:
-        model = _restricted(model, _log_choice(sparse_choice, cfg))
-        coarse = can_coarse and cfg.depth_views == "auto" and len(sparse_choice.chosen) >= COARSE_MIN_VIEWS
+    choice = None if can_coarse and cfg.depth_views == "coarse" else choose_depth_views(model, cfg)
+    if choice is not None:
+        model = _restricted(model, _log_choice(choice, cfg))
+    coarse = can_coarse and wants_coarse_cover(choice, cfg)
     views = _depth_plan(model, cfg, no_points, skipped)
     cfg = _pair_config(cfg, views)
     work = Path(work_dir) if work_dir else out / ".mvs_work"
@@ -506,10 +504,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
                       _filter_plan(model, views, cfg))
     coarse_results: dict = {}
     if coarse:
-        coarse_results, choice = _coarse_choice(ctx, ex)
-        if sparse_choice is not None:  # auto: the coarse surface's cover among the views the sparse points kept
-            choice = dataclasses.replace(choice, total=sparse_choice.total,
-                                         reason=f"{sparse_choice.reason}, then {choice.reason}")
+        coarse_results, coarse_choice = _coarse_choice(ctx, ex)
+        choice = coarse_choice if choice is None else coarse_choice.after(choice)
         model = _restricted(model, _log_choice(choice, cfg))
         views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
         ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg))

@@ -15,7 +15,7 @@ counted: a second photo from nearly the same place adds no triangulation angle a
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,6 +34,10 @@ class ViewChoice:
     reason: str  # "all requested", "no sparse points", "no point seen well by two views", "coverage", ...
     uncovered_points: int = 0  # points seen well by fewer chosen views than needed (0 when the cover is complete)
     surface_samples: int | None = None  # --depth-views coarse: the coarse surface's samples that two views see well
+
+    def after(self, first: "ViewChoice") -> "ViewChoice":
+        """This choice, made among the views ``first`` chose: counted against ``first``'s total, both reasons."""
+        return replace(self, total=first.total, reason=f"{first.reason}, then {self.reason}")
 
     def to_dict(self) -> dict:
         d = {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
@@ -148,6 +152,15 @@ COARSE_COVER_FRACTION = 0.98  # the cover stops when this fraction of the sample
 # are left: a capture that large is redundant enough for its sparse tracks (a handheld set's are short) to
 # understate what each photo sees, and the coarse round, reused by the views chosen, costs only where views are dropped
 COARSE_MIN_VIEWS = 40
+
+
+def wants_coarse_cover(sparse: ViewChoice | None, cfg) -> bool:
+    """Whether the coarse depth maps' cover chooses the views: always for ``--depth-views coarse`` (``sparse``
+    None: no sparse points' cover made), and for ``auto`` when the sparse points' cover kept at least
+    ``COARSE_MIN_VIEWS`` views."""
+    if sparse is None:
+        return cfg.depth_views == "coarse"
+    return cfg.depth_views == "auto" and len(sparse.chosen) >= COARSE_MIN_VIEWS
 
 
 def _coarse_samples(lv, depth: np.ndarray, normal: np.ndarray, cost: np.ndarray):

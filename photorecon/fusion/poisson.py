@@ -150,6 +150,8 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     from scipy import sparse
     from scipy.sparse.linalg import spsolve
 
+    from ..mesh.geometry import face_edges
+
     used = np.unique(patch_faces)
     remap = np.full(len(vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
@@ -160,7 +162,7 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     # one graph: the surface's vertices, then the patch's new ones (subdivision appends them after the old)
     to_global = np.concatenate([used, n_old + np.arange(n_new)])
     faces = np.vstack([np.asarray(open_mesh.faces), to_global[F]])
-    e = np.vstack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = face_edges(faces)
     e = np.vstack([e, e[:, ::-1]])
     n = n_old + n_new
     A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
@@ -185,11 +187,10 @@ def _orient_patches(faces: np.ndarray, patch_faces: np.ndarray) -> np.ndarray:
     on the hole's rim run the same way as the surface's (a consistent winding runs them opposite). One sign
     for all patches went wrong when holes came out of the filler wound differently (a patch with inward
     normals makes the second Poisson pass balloon)."""
+    from ..mesh.holes import boundary_directed
+
     n = int(max(faces.max(), patch_faces.max())) + 1
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    und = np.sort(e, axis=1)
-    _, inv, cnt = np.unique(und[:, 0] * n + und[:, 1], return_inverse=True, return_counts=True)
-    rim = e[cnt[inv.ravel()] == 1]  # directed boundary edges of the surface
+    rim = boundary_directed(faces, n)  # directed boundary edges of the surface
     rim_keys = rim[:, 0] * n + rim[:, 1]
     pe = np.stack([patch_faces[:, [0, 1]], patch_faces[:, [1, 2]], patch_faces[:, [2, 0]]], axis=1)  # (P, 3, 2)
     same = np.isin(pe[..., 0] * n + pe[..., 1], rim_keys).sum(1)

@@ -136,6 +136,13 @@ def hole_stats(V: np.ndarray, loops: list[np.ndarray]) -> dict:
 
 
 @njit(cache=True)
+def _diagonal(P3, idx, k, m):
+    """3D length of the diagonal that cutting corner ``k`` of the ``m`` corners ``idx`` would leave."""
+    a, c = idx[(k - 1) % m], idx[(k + 1) % m]
+    return np.sqrt(((P3[a] - P3[c]) ** 2).sum())
+
+
+@njit(cache=True)
 def _ear_clip(xy, P3, chords, max_tries=48):
     """Ear clipping of the simple polygon ``xy`` (n, 2) (3D corners ``P3`` (n, 3)): at each step the ear with the
     shortest diagonal (3D) among those that are convex and hold no other corner; a diagonal whose local key
@@ -155,8 +162,7 @@ def _ear_clip(xy, P3, chords, max_tries=48):
     # each corner's diagonal length, kept up to date as ears go (only the two corners beside an ear change)
     d = np.empty(n)
     for k in range(n):
-        a, c = idx[(k - 1) % n], idx[(k + 1) % n]
-        d[k] = np.sqrt(((P3[a] - P3[c]) ** 2).sum())
+        d[k] = _diagonal(P3, idx, k, n)
     tried = np.zeros(n, np.bool_)
     tl = np.empty(max_tries, np.int64)
     while m > 3:
@@ -213,8 +219,7 @@ def _ear_clip(xy, P3, chords, max_tries=48):
             d[k] = d[k + 1]
         m -= 1
         for k in ((pick - 1) % m, pick % m):  # the ear's two neighbours, now next to each other
-            a, c = idx[(k - 1) % m], idx[(k + 1) % m]
-            d[k] = np.sqrt(((P3[a] - P3[c]) ** 2).sum())
+            d[k] = _diagonal(P3, idx, k, m)
     if m == 3:
         out[t, 0], out[t, 1], out[t, 2] = idx[0], idx[1], idx[2]
     return out
@@ -375,6 +380,10 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
     return X
 
 
+# red-green splits (``_refine``) leave edges of 2/3 to 4/3 the target: about this many target^2 a face
+REFINED_FACE_AREA = 0.4
+
+
 def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarray | None = None,
                target: float | None = None, floor=None, max_faces: int = MAX_FILL_FACES,
                fan: bool = False) -> tuple[trimesh.Trimesh, int]:
@@ -417,12 +426,12 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
         pieces = [_triangulate(V0, lp, nr, edge_set) for lp, nr in zip(loops, normals)]
     patch = np.concatenate(pieces)
     rim_e = np.concatenate([np.stack([lp, np.roll(lp, -1)], 1) for lp in loops])
-    if target is None:  # patch faces as large as the surface's own (red-green splits: about 0.4 target^2 a face)
-        target = float(np.sqrt(np.median(face_areas(V0, F0)) / 0.4)) if len(F0) else 0.0
+    if target is None:  # patch faces as large as the surface's own, edges no shorter than the rims'
+        target = float(np.sqrt(np.median(face_areas(V0, F0)) / REFINED_FACE_AREA)) if len(F0) else 0.0
         target = max(target, float(np.median(np.linalg.norm(V0[rim_e[:, 0]] - V0[rim_e[:, 1]], axis=1))))
-    if max_faces > 0:  # red-green splits leave edges of 2/3 to 4/3 target: about 0.4 target^2 a face
+    if max_faces > 0:
         area = np.array([face_areas(Vs, p).sum() for p in pieces])
-        per_hole = np.maximum(target, np.sqrt(area / (0.4 * max_faces)))
+        per_hole = np.maximum(target, np.sqrt(area / (REFINED_FACE_AREA * max_faces)))
         target = np.repeat(per_hole, [len(p) for p in pieces])
     # every edge of the observed mesh is locked (rims, and any chord the ear clipping could not avoid)
     locked = np.unique(edge_keys(rim_e[:, 0], rim_e[:, 1], len(Vs)))

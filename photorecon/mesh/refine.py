@@ -38,6 +38,7 @@ from numba import njit, prange
 from ..cameras import View
 from ..errors import BadArgumentError
 from ..fields import check_config
+from .geometry import face_edges
 
 log = logging.getLogger("photorecon")
 
@@ -224,7 +225,7 @@ def tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """The mesh's vertex graph as CSR (indptr, neighbours), each edge once per direction."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = face_edges(faces)
     e = np.concatenate([e, e[:, ::-1]])
     e = np.unique(e, axis=0) if len(e) < 4_000_000 else e[np.unique(e[:, 0] * n_vertices + e[:, 1],
                                                                     return_index=True)[1]]
@@ -237,7 +238,7 @@ def adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarra
 
 def border_vertices(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """(V,) bool: the vertices on an edge that only one face uses (the rims of holes and of open surfaces)."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1).astype(np.int64)
+    e = np.sort(face_edges(faces), axis=1).astype(np.int64)
     keys, counts = np.unique(e[:, 0] * n_vertices + e[:, 1], return_counts=True)
     rim = keys[counts == 1]
     out = np.zeros(n_vertices, bool)
