@@ -36,6 +36,20 @@ def test_tsdf_matches_ground_truth(frames, gt, blob_fusion):
     assert mesh.visual.kind == "vertex" and np.asarray(mesh.visual.vertex_colors)[:, :3].std() > 5
 
 
+def test_same_depth_maps_give_the_same_mesh(frames, blob_fusion):
+    """Marching cubes lists vertices and faces in a thread-dependent order; the fused and cleaned mesh must not
+    depend on it (the same inputs, the same mesh.ply)."""
+    ds = Dataset.open(blob_fusion)
+    a, b = (clean(fuse(frames, FusionConfig(mesher="tsdf"), ds.model.points)) for _ in range(2))
+    assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+    assert np.array_equal(np.asarray(a.visual.vertex_colors), np.asarray(b.visual.vertex_colors))
+    # the fused mesh comes in the canonical order: vertices sorted by position, each face from its lowest vertex
+    fused = fuse(frames, FusionConfig(mesher="tsdf"), ds.model.points)
+    V, F = np.asarray(fused.vertices), np.asarray(fused.faces)
+    assert np.all(np.diff(V[:, 0]) >= 0)
+    assert np.all(F[:, 0] < F[:, 1]) and np.all(F[:, 0] < F[:, 2])
+
+
 def test_grid_mesher_one_surface(frames, gt):
     mesh = clean(fuse(frames, FusionConfig(mesher="grid")))
     m = mesh_metrics(mesh, gt, n_samples=50_000)
