@@ -240,6 +240,16 @@ def test_settings_resolve_in_order(parser, tmp_path):
     assert (mvs.max_size, mvs.n_sources, fusion.trunc_voxels) == (900, preview["mvs.n_sources"], 2.5)
     mvs, _, _ = resolve("--max-size", "1000", settings="quality = 'preview'\nmax_size = 900\n")
     assert (mvs.max_size, mvs.n_sources) == (1000, preview["mvs.n_sources"])
+    # preview writes no watertight companion unless asked for one
+    from photorecon.mesh import CleanConfig
+
+    def clean_of(*extra):
+        args = parser.parse_args(["reconstruct", "I", "-o", "O", *extra])
+        _apply_quality(args)
+        return config_from_args(CleanConfig, args)
+
+    assert clean_of().closed == "auto" and clean_of("--quality", "preview").closed == "off"
+    assert clean_of("--quality", "preview", "--closed", "auto").closed == "auto"
 
 
 @pytest.mark.parametrize("text, what", [

@@ -482,7 +482,7 @@ def reconstruct(sub):
     p.add_argument("images", help="image folder or video file (never written to)")
     _out_args(p)
     p.add_argument("--force", action="store_true", help="recompute every stage")
-    _quality_arg(p, ("sfm", "mvs", "fusion"))
+    _quality_arg(p, ("sfm", "mvs", "fusion", "clean"))
     _add_stage_args(p)
     p.set_common(COMMON_OPTIONS["reconstruct"], SHORT_HELP)
     p.set_defaults(func=_run_reconstruct)
