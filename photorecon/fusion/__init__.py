@@ -35,20 +35,24 @@ log = logging.getLogger("photorecon")
 
 def fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None, executor=None,
          dataset=None, work_dir=None) -> trimesh.Trimesh:
-    """Fuse depth frames into one mesh with ``cfg.mesher``. TSDF runs in chunks (``tsdf_fuse_chunked``, which
-    reads the depth maps from ``dataset``) when ``cfg.chunk_voxels`` is set or ``executor`` is a distributed one."""
+    """Fuse depth frames into one mesh with ``cfg.mesher``, in ``canonical_order`` (the same frames give the same
+    mesh). TSDF runs in chunks (``tsdf_fuse_chunked``, which reads the depth maps from ``dataset``) when
+    ``cfg.chunk_voxels`` is set or ``executor`` is a distributed one."""
     cfg = expect_config(cfg, FusionConfig, "cfg")
-    if cfg.mesher == "tsdf" and not cfg.watertight:
-        if dataset is not None and (cfg.chunk_voxels or getattr(executor, "distributed", False)):
-            return tsdf_fuse_chunked(dataset, frames, cfg, sparse_points, executor, work_dir)
-        return tsdf_fuse(frames, cfg, sparse_points)
     if cfg.watertight and cfg.mesher != "poisson":
         raise BadArgumentError(f"--watertight needs --mesher poisson (got --mesher {cfg.mesher})")
-    if cfg.mesher == "grid":
-        return grid_fuse(frames, cfg)
-    if cfg.mesher == "poisson":
-        return poisson_fuse(frames, cfg)
-    raise BadArgumentError(f"mesher: expected 'tsdf', 'grid' or 'poisson', got {cfg.mesher!r}")
+    if cfg.mesher == "tsdf" and not cfg.watertight:
+        if dataset is not None and (cfg.chunk_voxels or getattr(executor, "distributed", False)):
+            mesh = tsdf_fuse_chunked(dataset, frames, cfg, sparse_points, executor, work_dir)
+        else:
+            mesh = tsdf_fuse(frames, cfg, sparse_points)
+    elif cfg.mesher == "grid":
+        mesh = grid_fuse(frames, cfg)
+    elif cfg.mesher == "poisson":
+        mesh = poisson_fuse(frames, cfg)
+    else:
+        raise BadArgumentError(f"mesher: expected 'tsdf', 'grid' or 'poisson', got {cfg.mesher!r}")
+    return canonical_order(mesh) if len(mesh.faces) else mesh
 
 
 def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, depth_dir=None,
@@ -85,7 +89,7 @@ def canonical_order(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """The same mesh with its vertices sorted by position and its faces by their vertex numbers (each face
     starting at its lowest vertex, its winding kept): marching cubes on several threads (Open3D's, the chunks'
     stitching) emits the same triangles in an order that changes between runs, and the cleaning and the files
-    would follow it."""
+    would follow it (``fuse`` returns its meshes in this order)."""
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
     rank = np.empty(len(order), dtype=f.dtype)
@@ -115,7 +119,6 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
         frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
     if not len(fused.faces):
         raise EmptyMeshError("the mesh has no triangle")
-    fused = canonical_order(fused)  # the same depth maps give the same file, whatever order the threads took
     m, metadata = to_open3d(fused), dict(fused.metadata)
     del fused  # the cleaning works on the Open3D copy
     release_memory()  # the grid's and the frames' freed pages: the cleaning's peak would stack on them

@@ -444,37 +444,14 @@ def chunk_core(V: np.ndarray, F: np.ndarray, C: np.ndarray | None, lo: np.ndarra
 
 
 def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Marching cubes on the grid: (vertices (V, 3) float64, faces (F, 3) int64, colours (V, 3) uint8 or None),
-    in ``canonical_order``."""
+    """Marching cubes on the grid: (vertices (V, 3) float64, faces (F, 3) int64, colours (V, 3) uint8 or None)."""
     mesh = vbg.extract_triangle_mesh(weight_threshold=cfg.weight_threshold)
     V = mesh.vertex.positions.numpy().astype(np.float64)
     F = mesh.triangle.indices.numpy().astype(np.int64)
     colors = None
     if "colors" in mesh.vertex:
         colors = (np.clip(mesh.vertex.colors.numpy(), 0, 1) * 255).astype(np.uint8)
-    return canonical_order(V, F, colors)
-
-
-def canonical_order(V: np.ndarray, F: np.ndarray, C: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """The same mesh with its vertices sorted by position (x, then y, then z) and its faces by their vertices,
-    each face starting at its lowest vertex (winding kept). Open3D's marching cubes runs on several threads and
-    lists the same vertices and faces in a different order from run to run; what comes after it (cleaning,
-    hole filling, simplification) depends on that order, so without this the same depth maps would give
-    meshes that differ in a few thousand faces."""
-    if not len(V):
-        return V, F, C
-    order = np.lexsort((V[:, 2], V[:, 1], V[:, 0]))
-    rank = np.empty(len(V), np.int64)
-    rank[order] = np.arange(len(V))
-    V = V[order]
-    C = C[order] if C is not None else None
-    F = rank[F]
-    if len(F):
-        roll = np.argmin(F, axis=1)  # rotate each face to start at its lowest vertex: the same cycle
-        F = np.take_along_axis(F, (roll[:, None] + np.arange(3)[None]) % 3, axis=1)
-        F = F[np.lexsort((F[:, 2], F[:, 1], F[:, 0]))]
-    return V, F, C
+    return V, F, colors
 
 
 def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.ndarray | None = None) -> trimesh.Trimesh:
