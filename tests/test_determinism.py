@@ -65,6 +65,23 @@ def test_extraction_numbers_images_by_name_whatever_order_they_come_in(ring_smal
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fwd.db", "rev.db"]  # no temporary left
 
 
+def test_given_cameras_triangulate_to_the_same_points_twice(ring_small, tmp_path):
+    """Depth ranges and view selection come from these points when cameras are given without them: each pair's
+    RANSAC is seeded, and the points are numbered by position (the triangulator's threads number them in any
+    order)."""
+    from photorecon.io.dataset import Dataset
+    from photorecon.poses.triangulate import triangulate_given
+
+    ds = Dataset.open(ring_small)
+    a, b = (triangulate_given(ds.layout.images, ds.model, tmp_path / name) for name in ("a", "b"))
+    assert len(a.points) > 50 and len(a.points) == len(b.points)
+    assert np.allclose(a.points, b.points, rtol=0, atol=1e-9)  # the bundle adjustment's last bits may differ
+    assert np.array_equal(a.point_ids, b.point_ids) and np.array_equal(a.point_ids, np.arange(1, len(a.points) + 1))
+    assert np.all(np.diff(a.points[:, 0]) >= 0)
+    for v in a.views:
+        assert np.array_equal(a.observations[v.name][1], b.observations[v.name][1]), v.name
+
+
 def test_canonical_order_is_the_same_for_any_order_of_the_same_mesh():
     from photorecon.fusion import canonical_order
 

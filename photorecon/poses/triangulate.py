@@ -302,11 +302,15 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
         matcher = "exhaustive" if len(views) <= cfg.exhaustive_max else "overlap"
     mopt = pycolmap.FeatureMatchingOptions()
     mopt.num_threads = cfg.threads
+    vopt = pycolmap.TwoViewGeometryOptions()
+    vopt.ransac.random_seed = 0  # each pair's RANSAC seeded: the same inliers, the same points, run after run
+    pycolmap.set_random_seed(0)
     stats.matcher = matcher
     try:
         if matcher == "exhaustive":
             stats.pairs = len(views) * (len(views) - 1) // 2
-            pycolmap.match_exhaustive(str(db_path), matching_options=mopt, device=pycolmap.Device.cpu)
+            pycolmap.match_exhaustive(str(db_path), matching_options=mopt, verification_options=vopt,
+                                      device=pycolmap.Device.cpu)
         else:
             pairs = overlap_pairs(views, cfg.overlap_neighbors, cfg.max_view_angle_deg)
             stats.pairs = len(pairs)
@@ -317,7 +321,7 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
             popt = pycolmap.ImportedPairingOptions()
             popt.match_list_path = str(pair_file)
             pycolmap.match_image_pairs(str(db_path), matching_options=mopt, pairing_options=popt,
-                                       device=pycolmap.Device.cpu)
+                                       verification_options=vopt, device=pycolmap.Device.cpu)
     except Exception as exc:
         return fail(f"feature matching failed ({_first_line(exc)})")
     stats.seconds["matching"] = time.perf_counter() - t0
@@ -336,6 +340,7 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     for two_view in ((True,) if len(views) == 2 else (False, True)):
         opt = pycolmap.IncrementalPipelineOptions()
         opt.num_threads = cfg.threads
+        opt.random_seed = 0
         opt.extract_colors = False  # the working copies are contrast-normalised: colours come from the originals
         opt.triangulation.ignore_two_view_tracks = not two_view
         try:
@@ -430,4 +435,13 @@ def _to_model(rec, views: list[View], names: list[str]) -> tuple[SparseModel, fl
     xyz = np.array([rec.points3D[int(i)].xyz for i in pids], float).reshape(-1, 3)
     rgb = np.array([rec.points3D[int(i)].color for i in pids], np.uint8).reshape(-1, 3)
     err = np.array([rec.points3D[int(i)].error for i in pids], float)
-    return SparseModel(views, xyz, rgb, pids, err, obs), moved
+    # numbered by position: the triangulator's threads number the same points in a different order each run
+    order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    rank = np.empty(len(pids), np.int64)
+    rank[order] = np.arange(1, len(pids) + 1)
+    for name, (xy, ids) in obs.items():
+        seen = ids >= 0
+        new = ids.copy()
+        new[seen] = rank[np.searchsorted(pids, ids[seen])]
+        obs[name] = (xy, new)
+    return SparseModel(views, xyz[order], rgb[order], rank[order], err[order], obs), moved
