@@ -40,12 +40,12 @@ def test_same_depth_maps_give_the_same_mesh(frames, blob_fusion):
     """Marching cubes lists vertices and faces in a thread-dependent order; the fused and cleaned mesh must not
     depend on it (the same inputs, the same mesh.ply)."""
     ds = Dataset.open(blob_fusion)
-    a, b = (clean(fuse(frames, FusionConfig(mesher="tsdf"), ds.model.points)) for _ in range(2))
+    fused = [fuse(frames, FusionConfig(mesher="tsdf"), ds.model.points) for _ in range(2)]
+    a, b = (clean(m) for m in fused)
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
     assert np.array_equal(np.asarray(a.visual.vertex_colors), np.asarray(b.visual.vertex_colors))
     # the fused mesh comes in the canonical order: vertices sorted by position, each face from its lowest vertex
-    fused = fuse(frames, FusionConfig(mesher="tsdf"), ds.model.points)
-    V, F = np.asarray(fused.vertices), np.asarray(fused.faces)
+    V, F = np.asarray(fused[0].vertices), np.asarray(fused[0].faces)
     assert np.all(np.diff(V[:, 0]) >= 0)
     assert np.all(F[:, 0] < F[:, 1]) and np.all(F[:, 0] < F[:, 2])
 

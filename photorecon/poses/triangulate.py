@@ -51,6 +51,7 @@ class TriangulateConfig:
     use_alpha_mask: bool = field(default=True, metadata={"help": "no features where an image's alpha channel is 0"})
     min_points: int = field(default=50, metadata={"help": "fewer triangulated points than this: warn and return the model unchanged", "range": (0, 100_000_000)})
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)", "range": (1, 4096), "also": (-1,)})
+    seed: int = field(default=0, metadata={"help": "random seed of the pairs' RANSAC and of the triangulator (the same points run after run, as SfM's --seed)", "range": (0, 2**31 - 1)})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
@@ -303,8 +304,8 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     mopt = pycolmap.FeatureMatchingOptions()
     mopt.num_threads = cfg.threads
     vopt = pycolmap.TwoViewGeometryOptions()
-    vopt.ransac.random_seed = 0  # each pair's RANSAC seeded: the same inliers, the same points, run after run
-    pycolmap.set_random_seed(0)
+    vopt.ransac.random_seed = cfg.seed  # each pair's RANSAC seeded: the same inliers, the same points, run after run
+    pycolmap.set_random_seed(cfg.seed)
     stats.matcher = matcher
     try:
         if matcher == "exhaustive":
@@ -340,7 +341,7 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     for two_view in ((True,) if len(views) == 2 else (False, True)):
         opt = pycolmap.IncrementalPipelineOptions()
         opt.num_threads = cfg.threads
-        opt.random_seed = 0
+        opt.random_seed = cfg.seed
         opt.extract_colors = False  # the working copies are contrast-normalised: colours come from the originals
         opt.triangulation.ignore_two_view_tracks = not two_view
         try:
