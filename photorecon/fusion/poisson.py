@@ -148,9 +148,8 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     so a patch continues the surface's slope across the rim instead of cutting straight across the hole
     (Liepa, "Filling holes in meshes", SGP 2003)."""
     from scipy import sparse
-    from scipy.sparse.linalg import spsolve
-
     from ..mesh.geometry import face_edges
+    from ..mesh.solve import solve_spd
 
     used = np.unique(patch_faces)
     remap = np.full(len(vertices), -1, np.int64)
@@ -173,7 +172,7 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     X = np.vstack([np.asarray(open_mesh.vertices), V[len(used):]])
     fixed = np.arange(n_old)
     try:
-        X[new] = spsolve(L2[:, new].tocsc(), -(L2[:, fixed] @ X[fixed]))
+        X[new] = solve_spd(L2[:, new], -(L2[:, fixed] @ X[fixed]))
     except Exception as exc:  # a singular system (a patch touching nothing fixed): keep the flat patch
         log.debug("poisson --watertight: patch fairing skipped (%s)", exc)
         return trimesh.Trimesh(V, F, process=False)

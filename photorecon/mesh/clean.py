@@ -386,7 +386,8 @@ def harmonic_fill(n_vertices: int, edges: np.ndarray, known: np.ndarray, values:
     point's). Unknown nodes not connected to a known one get the known values' mean (0 without any)."""
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
-    from scipy.sparse.linalg import spsolve
+
+    from .solve import solve_spd
 
     values = np.asarray(values, np.float64).reshape(len(known), -1)
     out = np.empty((n_vertices, values.shape[1]))
@@ -409,7 +410,7 @@ def harmonic_fill(n_vertices: int, edges: np.ndarray, known: np.ndarray, values:
     L = (sparse.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
     fixed = np.flatnonzero(is_known)
     rhs = -(L[free][:, fixed] @ out[fixed])
-    sol = spsolve(L[free][:, free].tocsc(), rhs)
+    sol = solve_spd(L[free][:, free], rhs)
     out[free] = np.asarray(sol).reshape(len(free), -1)
     return out
 

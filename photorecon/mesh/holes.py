@@ -328,7 +328,8 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
     connected patch. ``floor``: (n, c) a plane n . X = c the new vertices are kept above (an object's support)."""
     from scipy import sparse
     from scipy.sparse.csgraph import connected_components
-    from scipy.sparse.linalg import spsolve
+
+    from .solve import solve_spd
 
     n_new = len(V) - n_old
     if n_new <= 0:
@@ -364,8 +365,7 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
     for c in range(len(bounds) - 1):
         r0, r1 = bounds[c], bounds[c + 1]
         try:
-            # symmetric (rows of L L): minimum degree ordering on its pattern
-            x = spsolve(M[r0:r1].tocsc()[:, r0:r1], rhs[r0:r1], permc_spec="MMD_AT_PLUS_A")
+            x = solve_spd(M[r0:r1].tocsc()[:, r0:r1], rhs[r0:r1])  # rows and columns of L L: symmetric
         except Exception as exc:  # singular: keep the flat patch
             log.debug("hole filling: fairing skipped (%s)", exc)
             x = V[used[new[r0:r1]]]
