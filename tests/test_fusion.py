@@ -261,8 +261,10 @@ def _reference_weighted_update(vbg, coords, f, voxel, trunc, depth_max, normal_s
         weight[li] = w_old + w
 
 
-@pytest.mark.parametrize("normal_sdf", [0.0, 0.3])
-def test_weighted_kernel_matches_numpy_reference(normal_sdf):
+@pytest.mark.parametrize("normal_sdf, form", [(0.0, "float32"), (0.3, "float32"), (0.3, "half_kept"), (0.3, "ones")])
+def test_weighted_kernel_matches_numpy_reference(normal_sdf, form):
+    """The compiled kernel against the reference, with float32 normals; with float16 normals read through a
+    mask of kept pixels (packed bits, as the chunked fusion passes them); with weight 1 per pixel (``ones``)."""
     import open3d as o3d
     import open3d.core as o3c
 
@@ -298,7 +300,17 @@ def test_weighted_kernel_matches_numpy_reference(normal_sdf):
         K = o3c.Tensor(f.view.intrinsics.K, o3c.float64)
         T = o3c.Tensor(f.view.cam_from_world, o3c.float64)
         coords = fast.compute_unique_block_coordinates(depth, K, T, 1.0, depth_max, trunc_voxels)
-        _integrate_weighted(fast, coords, f, voxel, trunc, depth_max, normal_sdf)
+        if form == "half_kept":
+            kept = rng.random(f.depth.shape) < 0.7
+            half = f.normal.astype(np.float16)
+            _integrate_weighted(fast, coords, replace(f, normal=half), voxel, trunc, depth_max, normal_sdf,
+                                keep=np.packbits(kept, axis=None))
+            f = replace(f, normal=np.where(kept[..., None], half.astype(np.float32), np.float32(0)))
+        elif form == "ones":
+            _integrate_weighted(fast, coords, f, voxel, trunc, depth_max, normal_sdf, ones=True)
+            f = replace(f, confidence=(f.depth > 0).astype(np.float32))
+        else:
+            _integrate_weighted(fast, coords, f, voxel, trunc, depth_max, normal_sdf)
         _reference_weighted_update(slow, coords, f, voxel, trunc, depth_max, normal_sdf)
     keys_f, keys_s = fast.hashmap().key_tensor().numpy(), slow.hashmap().key_tensor().numpy()
     act_f = fast.hashmap().active_buf_indices().numpy()
@@ -313,7 +325,11 @@ def test_weighted_kernel_matches_numpy_reference(normal_sdf):
 
     wf, ws = values(fast, pairs[:, 0], "weight"), values(slow, pairs[:, 1], "weight")
     touched = ws > 0
-    assert touched.sum() > 20_000 and len(np.unique(np.round(ws[touched], 4))) > 100  # real, fractional weights
+    assert touched.sum() > 20_000
+    if form != "ones":
+        assert len(np.unique(np.round(ws[touched], 4))) > 100  # real, fractional weights
+    else:
+        assert len(np.unique(ws[touched])) <= 3  # whole frames of weight 1: 1, 2 or 3
     np.testing.assert_allclose(wf, ws, atol=1e-5, rtol=0)
     np.testing.assert_allclose(values(fast, pairs[:, 0], "tsdf")[touched], values(slow, pairs[:, 1], "tsdf")[touched],
                                atol=1e-5, rtol=0)

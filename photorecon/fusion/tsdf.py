@@ -14,6 +14,7 @@ thicker than a voxel and come out whole, and no fin grows behind an object's rim
 from __future__ import annotations
 
 import logging
+import math
 
 import warnings
 from dataclasses import replace
@@ -146,9 +147,25 @@ def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
 
 
 
+@njit(cache=True, inline="always")
+def _half(h):  # pragma: no cover - compiled
+    """The value of IEEE half-precision bits ``h`` (uint16) as a float (numba has no float16)."""
+    b = np.int64(h)
+    e = (b >> 10) & 31
+    m = b & 1023
+    if e == 0:
+        v = math.ldexp(np.float64(m), -24)
+    elif e == 31:
+        v = math.inf if m == 0 else math.nan
+    else:
+        v = math.ldexp(np.float64(m + 1024), e - 25)
+    return -v if b >> 15 else v
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trunc, depth_max,
-                          depth, weight_map, color_img, normal_map, min_cos, tsdf, weight, color):  # pragma: no cover - compiled
+                          depth, weight_map, color_img, normal_map, normal_half, keep_bits, min_cos, tsdf, weight,
+                          color):  # pragma: no cover - compiled
     """One pass over the voxels of the given blocks: project each voxel centre, look up its pixel (nearest,
     pixel (0, 0) = centre of the top-left pixel) and fold ``weight_map[pixel]`` x the truncated SDF into the
     running weighted mean (Open3D's update rule with a per-pixel weight instead of 1). Blocks are distinct,
@@ -159,9 +176,15 @@ def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trun
     distance to the pixel's tangent plane, (depth - z) x |n . (x/z, y/z, 1)| (at least ``min_cos`` x the
     distance along the ray), not along the ray: on a surface seen at a grazing angle the distance along the
     ray is many times the true one, so the truncation band below the surface gets thinner than a voxel and
-    marching cubes finds the surface only in stripes."""
+    marching cubes finds the surface only in stripes. ``normal_half`` (H, W, 3) uint16: the normals as IEEE
+    half-precision bits instead (a depth map's float16 normals, read without a float32 copy of the frame).
+    ``keep_bits``: the pixels whose normal counts, one bit per pixel (``np.packbits`` of the (H, W) mask), or
+    empty for all. ``weight_map`` (1, 1) for none: weight 1 at every pixel with a depth."""
     H, W = depth.shape
     use_normal = normal_map.shape[0] == H and normal_map.shape[1] == W
+    use_half = normal_half.shape[0] == H and normal_half.shape[1] == W
+    use_keep = keep_bits.shape[0] > 0
+    use_weight = weight_map.shape[0] == H and weight_map.shape[1] == W
     res = 16
     inv_trunc = 1.0 / trunc
     for i in prange(block_keys.shape[0]):
@@ -195,10 +218,20 @@ def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trun
                     if d <= 0.0 or d >= depth_max:
                         continue
                     sdf = d - zc
-                    if use_normal:
-                        n0 = normal_map[vi, ui, 0]
-                        n1 = normal_map[vi, ui, 1]
-                        n2 = normal_map[vi, ui, 2]
+                    if use_normal or use_half:
+                        n0 = n1 = n2 = 0.0
+                        kept = True
+                        if use_keep:
+                            k = vi * W + ui
+                            kept = ((keep_bits[k >> 3] >> (7 - (k & 7))) & 1) == 1
+                        if kept and use_half:
+                            n0 = _half(normal_half[vi, ui, 0])
+                            n1 = _half(normal_half[vi, ui, 1])
+                            n2 = _half(normal_half[vi, ui, 2])
+                        elif kept:
+                            n0 = normal_map[vi, ui, 0]
+                            n1 = normal_map[vi, ui, 1]
+                            n2 = normal_map[vi, ui, 2]
                         if n0 * n0 + n1 * n1 + n2 * n2 > 0.25:
                             rx = (u - cx) / fx
                             ry = (v - cy) / fy
@@ -207,7 +240,7 @@ def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trun
                             sdf *= max(c, lim)
                     if sdf < -trunc:
                         continue
-                    w_new = weight_map[vi, ui]
+                    w_new = weight_map[vi, ui] if use_weight else 1.0
                     if w_new <= 0.0:
                         continue
                     if sdf > trunc:
@@ -223,10 +256,11 @@ def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trun
 
 
 def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc: float, depth_max: float,
-                        normal_sdf: float = 0.0) -> None:
-    """TSDF integration with a per-pixel weight (the confidence map), on the grid's own voxel storage: Open3D's
-    ``integrate`` gives every pixel weight 1. Same update rule: running weighted mean of the truncated SDF
-    (and of the colour, 0..255, mid-grey where the frame has none)."""
+                        normal_sdf: float = 0.0, keep: np.ndarray | None = None, ones: bool = False) -> None:
+    """TSDF integration with a per-pixel weight (the confidence map; weight 1 per pixel with a depth when
+    ``ones``), on the grid's own voxel storage: Open3D's ``integrate`` gives every pixel weight 1. Same update
+    rule: running weighted mean of the truncated SDF (and of the colour, 0..255, mid-grey where the frame has
+    none). ``keep``: the pixels whose normal counts, packed bits (``np.packbits``), None for all."""
     import open3d.core as o3c
 
     hm = vbg.hashmap()
@@ -244,16 +278,22 @@ def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc:
     weight = vbg.attribute("weight").numpy().reshape(-1)
     grid_color = vbg.attribute("color").numpy().reshape(-1, 3)
     normals = np.zeros((1, 1, 3), np.float32)
+    half = np.zeros((1, 1, 3), np.uint16)
     if normal_sdf > 0 and f.normal is not None:
-        normals = np.ascontiguousarray(f.normal, np.float32)
+        if f.normal.dtype == np.float16:
+            half = np.ascontiguousarray(f.normal).view(np.uint16)
+        else:
+            normals = np.ascontiguousarray(f.normal, np.float32)
+    keep = np.zeros(0, np.uint8) if keep is None else np.ascontiguousarray(keep, np.uint8)
+    weights = np.zeros((1, 1), np.float32) if ones else np.ascontiguousarray(f.confidence, np.float32)
     with warnings.catch_warnings():  # numba's note that it falls back from an old TBB to OpenMP threads
         warnings.filterwarnings("ignore", message=".*TBB threading layer")
         _tsdf_weighted_kernel(np.ascontiguousarray(block_coords.numpy(), np.int32),
                               np.ascontiguousarray(buf.numpy().ravel(), np.int64), T[:3, :3].copy(), T[:3, 3].copy(),
                               float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(voxel),
                               float(trunc), float(depth_max), np.ascontiguousarray(f.depth, np.float32),
-                              np.ascontiguousarray(f.confidence, np.float32), np.ascontiguousarray(color, np.uint8),
-                              normals, float(normal_sdf), tsdf, weight, grid_color)
+                              weights, np.ascontiguousarray(color, np.uint8), normals, half, keep,
+                              float(normal_sdf), tsdf, weight, grid_color)
 
 
 def _new_grid(voxel: float, n_blocks: int):
@@ -397,8 +437,9 @@ def _frame_blocks(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max
 
 
 def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cfg: FusionConfig, voxel: float,
-                      depth_max: float) -> None:
-    """Integrate the frame ``f`` (from ``_frame_blocks``) into the blocks ``coords`` of ``vbg``."""
+                      depth_max: float, keep: np.ndarray | None = None, ones: bool = False) -> None:
+    """Integrate the frame ``f`` (from ``_frame_blocks``) into the blocks ``coords`` of ``vbg``; ``keep`` and
+    ``ones`` as ``_integrate_weighted``'s."""
     import open3d as o3d
     import open3d.core as o3c
 
@@ -406,7 +447,7 @@ def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cf
         return
     c = o3c.Tensor(np.ascontiguousarray(coords, np.int32))
     if weighted:
-        _integrate_weighted(vbg, c, f, voxel, cfg.trunc_voxels * voxel, depth_max, cfg.normal_sdf)
+        _integrate_weighted(vbg, c, f, voxel, cfg.trunc_voxels * voxel, depth_max, cfg.normal_sdf, keep, ones)
         return
     K = o3c.Tensor(f.view.intrinsics.K, o3c.float64)
     T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
@@ -514,13 +555,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
                 coords = coords[_in_box(coords, lo - 1, hi + 1)]
                 if not len(coords):
                     continue
-            f = full_frame(frames, i)
-            if keep is not None:
-                mask = np.unpackbits(keep, count=f.depth.size).reshape(f.depth.shape).astype(bool)
-                f = replace(f, normal=np.where(mask[..., None], np.asarray(f.normal, np.float32), np.float32(0)))
-            if ones:
-                f = replace(f, confidence=(f.depth > 0).astype(np.float32))
-            _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
+            # the frame as it is: the kernel reads its normals through ``keep`` and weighs by ``ones``
+            _integrate_blocks(vbg, full_frame(frames, i), coords, weighted, cfg, voxel, depth_max, keep, ones)
         V, F, C = _extract(vbg, cfg)
         del vbg
         release_memory(collect=False)  # the grid is freed by reference counting
