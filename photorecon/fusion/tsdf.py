@@ -240,7 +240,7 @@ def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trun
                             sdf *= max(c, lim)
                     if sdf < -trunc:
                         continue
-                    w_new = weight_map[vi, ui] if use_weight else 1.0
+                    w_new = weight_map[vi, ui] if use_weight else np.float32(1.0)
                     if w_new <= 0.0:
                         continue
                     if sdf > trunc:
