@@ -197,10 +197,11 @@ class Intrinsics:
         xy = self.undistort(xy)
         return np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
 
-    def pixel_grid(self) -> np.ndarray:
-        """All pixel centres as (H, W, 2) array of (u, v) = (column, row). The one place the grid is built."""
-        u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64),
-                           indexing="xy")
+    def pixel_grid(self, step: int = 1) -> np.ndarray:
+        """All pixel centres as (H, W, 2) array of (u, v) = (column, row); with ``step``, every step-th row and
+        column from the first (the grid of ``depth[::step, ::step]``). The one place the grid is built."""
+        u, v = np.meshgrid(np.arange(0, self.width, step, dtype=np.float64),
+                           np.arange(0, self.height, step, dtype=np.float64), indexing="xy")
         return np.stack([u, v], axis=-1)
 
 
@@ -328,11 +329,16 @@ def backproject_depth(depth, intrinsics: Intrinsics, cam_from_world, mask=None, 
             raise BadArgumentError(f"mask: expected shape {depth.shape}, got {mask.shape}")
         valid &= mask
     uv = intrinsics.pixel_grid()[valid]
-    rays = intrinsics.pixel_rays(uv)
-    pts_cam = rays * depth[valid].astype(np.float64)[:, None]
-    world_from_cam = invert_rigid(T)
-    pts = pts_cam @ world_from_cam[:3, :3].T + world_from_cam[:3, 3]
+    pts = backproject_pixels(uv, depth[valid], intrinsics, T)
     return (pts, uv) if return_pixels else pts
+
+
+def backproject_pixels(uv, z, intrinsics: Intrinsics, cam_from_world) -> np.ndarray:
+    """Pixels (N, 2) (u = column, v = row) at z-depths (N,) -> world points (N, 3)."""
+    rays = intrinsics.pixel_rays(np.asarray(uv, np.float64))
+    pts_cam = rays * np.asarray(z).astype(np.float64)[:, None]
+    world_from_cam = invert_rigid(as_rigid(cam_from_world, "cam_from_world"))
+    return pts_cam @ world_from_cam[:3, :3].T + world_from_cam[:3, 3]
 
 
 def valid_depth_mask(depth) -> np.ndarray:

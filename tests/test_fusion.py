@@ -845,3 +845,72 @@ def test_streamed_frames_are_prepared_once_and_fuse_in_chunks_to_the_one_grid_me
     assert folder.parent == tmp_path / "work" and len(list(folder.glob("*.depth.npy"))) == len(views)
     del store
     assert not folder.exists()
+
+
+def _reference_planar_normals(f, trunc, min_cos, tol, min_px=2.0, max_px=8.0):
+    """The tangent-plane test of ``planar_normals`` written with whole-array numpy (slow, easy to read)."""
+    d = f.depth
+    H, W = d.shape
+    intr = f.view.intrinsics
+    n_all = np.asarray(f.normal, np.float32)
+    ok = (d > 0) & (np.einsum("hwc,hwc->hw", n_all, n_all) > 0.25)
+    rows, cols = np.nonzero(ok)
+    x = (cols - intr.cx) / intr.fx
+    y = (rows - intr.cy) / intr.fy
+    z = d[rows, cols].astype(np.float64)
+    n = n_all[rows, cols].astype(np.float64)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    ray = np.stack([x, y, np.ones_like(x)], 1)
+    n *= -np.sign(np.einsum("ij,ij->i", n, ray))[:, None]
+    norm = np.linalg.norm(ray, axis=1)
+    cos = -np.einsum("ij,ij->i", n, ray) / norm
+    s = trunc / np.maximum(cos, min_cos)
+    g = np.stack([intr.fx * (n[:, 0] - x * n[:, 2]), intr.fy * (n[:, 1] - y * n[:, 2])], 1) / z[:, None]
+    g_len = np.linalg.norm(g, axis=1)
+    Q = ray * (z + s / norm)[:, None] + (s * cos)[:, None] * n
+    Q[:, :2] = Q[:, :2] / Q[:, 2:3]
+    reach = np.clip(np.hypot((Q[:, 0] - x) * intr.fx, (Q[:, 1] - y) * intr.fy), min_px, max_px)
+    plane_d = z * np.einsum("ij,ij->i", n, ray)
+    frontal = g_len * z < 1e-3 * 0.5 * (intr.fx + intr.fy)
+    direction = g / np.maximum(g_len, 1e-12)[:, None]
+    keep = np.ones(len(rows), bool)
+    for t in (0.5, 1.0):
+        uu = np.round(cols + t * reach * direction[:, 0]).astype(np.int64)
+        vv = np.round(rows + t * reach * direction[:, 1]).astype(np.int64)
+        inside = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+        uc, vc = np.clip(uu, 0, W - 1), np.clip(vv, 0, H - 1)
+        dq = d[vc, uc].astype(np.float64)
+        off = dq * (n[:, 0] * (uc - intr.cx) / intr.fx + n[:, 1] * (vc - intr.cy) / intr.fy + n[:, 2]) - plane_d
+        keep &= frontal | (inside & (dq > 0) & (np.abs(off) <= tol))
+    out = np.zeros_like(n_all)
+    out[rows[keep], cols[keep]] = n_all[rows[keep], cols[keep]]
+    return out
+
+
+def test_planar_normals_kernel_matches_numpy_reference():
+    """The compiled tangent-plane test keeps exactly the normals the whole-array version keeps: a ground plane
+    seen at grazing angles (kept), a box standing on it (its rims fail the test), float16 normals, holes."""
+    from photorecon.fusion.tsdf import planar_normals
+
+    intr = Intrinsics(96, 72, 70.0, 71.0, 47.3, 35.6)
+    vv, uu = np.mgrid[0:72, 0:96].astype(np.float64)
+    rays = np.stack([(uu - intr.cx) / intr.fx, (vv - intr.cy) / intr.fy, np.ones_like(uu)], -1)
+    # the ground y = 1 (OpenCV: y down) below the horizon, and a box's face z = 3 over part of it
+    depth = np.where(rays[..., 1] > 0.02, 1.0 / np.maximum(rays[..., 1], 1e-9), 0.0)
+    normal = np.zeros(depth.shape + (3,))
+    normal[..., 1] = -1.0
+    box = (uu > 30) & (uu < 60) & (vv > 20) & (depth > 3.0)
+    depth[box] = 3.0
+    normal[box] = (0.0, 0.0, -1.0)
+    depth[depth > 12.0] = 0.0
+    rng = np.random.default_rng(5)
+    normal[rng.random(depth.shape) < 0.03] = 0.0  # pixels without a normal
+    normal = (normal + rng.normal(0, 0.02, normal.shape) * (np.abs(normal).sum(-1, keepdims=True) > 0))
+    f = DepthFrame(View("v", intr, np.eye(4)), depth.astype(np.float32), None, None, normal.astype(np.float16))
+    for tol in (0.01, 0.05):
+        got = planar_normals(f, 0.06, 0.2, tol)
+        want = _reference_planar_normals(f, 0.06, 0.2, tol)
+        kept = np.any(want != 0, axis=2)
+        has = (depth > 0) & np.any(normal != 0, axis=2)
+        assert 0.3 * has.sum() < kept.sum() < has.sum()  # some kept, some dropped
+        np.testing.assert_array_equal(got, want)

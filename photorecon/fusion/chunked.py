@@ -11,6 +11,7 @@ import numpy as np
 import trimesh
 
 from ..cameras import View
+from ..arrays import unique_rows, unique_sorted
 from ..errors import NoDepthError
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
 from .frames import load_frame, nonempty
@@ -43,7 +44,7 @@ def _sample_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> np.n
     if not len(k):
         return np.zeros((0, 3), np.int64)
     off = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
-    k = np.unique((k[:, None] + ((off[:, 0] << 42) + (off[:, 1] << 21) + off[:, 2])[None]).ravel())
+    k = unique_sorted(k[:, None] + ((off[:, 0] << 42) + (off[:, 1] << 21) + off[:, 2])[None])
     mask = (1 << 21) - 1  # unpack _cell_keys' 21-bit fields
     return np.stack([(k >> 42) & mask, (k >> 21) & mask, k & mask], 1) - (1 << 20)
 
@@ -52,7 +53,7 @@ def plan_chunks(frames: list[DepthFrame], voxel: float, trunc: float, chunk_bloc
     """The chunks (index (i, j, k): blocks [index * chunk_blocks, (index + 1) * chunk_blocks) on each axis) that
     hold surface, each with its estimated block count (for the grid's first allocation)."""
     blocks = _sample_blocks(frames, voxel, trunc)
-    ids, counts = np.unique(np.floor_divide(blocks, chunk_blocks), axis=0, return_counts=True)
+    ids, counts = unique_rows(np.floor_divide(blocks, chunk_blocks), return_counts=True)
     return [(tuple(int(x) for x in i), int(c)) for i, c in zip(ids, counts)]
 
 

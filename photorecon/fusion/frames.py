@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import View, backproject_depth
+from ..cameras import View, backproject_pixels, valid_depth_mask
 from ..errors import BadArgumentError, InputDataError, NoDepthError
 from .config import DepthFrame, FusionConfig
 
@@ -46,9 +46,10 @@ def prepare_depth(view: View, depth: np.ndarray, cfg: FusionConfig, mask: np.nda
 def _sample_depth_points(f: DepthFrame, n: int) -> np.ndarray:
     """World points of about ``n`` pixels of a depth map, on a regular grid (the invalid ones dropped)."""
     step = max(1, int(np.sqrt(f.depth.size / n)))
-    sub = np.zeros_like(f.depth)
-    sub[::step, ::step] = f.depth[::step, ::step]
-    return backproject_depth(sub, f.view.intrinsics, f.view.cam_from_world)
+    sub = np.asarray(f.depth[::step, ::step])
+    valid = valid_depth_mask(sub)
+    uv = f.view.intrinsics.pixel_grid(step)[valid]
+    return backproject_pixels(uv, sub[valid], f.view.intrinsics, f.view.cam_from_world)
 
 
 def scene_diagonal(frames: list[DepthFrame], sparse_points: np.ndarray | None = None) -> float:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from ..arrays import unique_sorted
 from ..cameras import backproject_depth, camera_center
 from ..errors import EmptyMeshError, NoDepthError
 from ..progress import bar
@@ -111,7 +112,7 @@ def grid_fuse(frames: list[DepthFrame], cfg: FusionConfig) -> trimesh.Trimesh:
         sel = keep[start:start + len(qq)]
         start += len(qq)
         t = p.tris[sel]
-        used = np.unique(t)
+        used = unique_sorted(t)
         remap = np.full(len(p.points), -1, np.int64)
         remap[used] = np.arange(len(used)) + offset
         verts.append(p.points[used])

@@ -15,6 +15,7 @@ import logging
 import numpy as np
 import trimesh
 
+from ..arrays import isin, unique_sorted
 from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
 from .config import DepthFrame, FusionConfig
 from .frames import pixel_footprint
@@ -151,7 +152,7 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     from ..mesh.geometry import face_edges
     from ..mesh.solve import solve_spd
 
-    used = np.unique(patch_faces)
+    used = unique_sorted(patch_faces)
     remap = np.full(len(vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
     V, F = trimesh.remesh.subdivide_to_size(vertices[used], remap[patch_faces], max_edge=2 * cell, max_iter=20)
@@ -192,8 +193,8 @@ def _orient_patches(faces: np.ndarray, patch_faces: np.ndarray) -> np.ndarray:
     rim = boundary_directed(faces, n)  # directed boundary edges of the surface
     rim_keys = rim[:, 0] * n + rim[:, 1]
     pe = np.stack([patch_faces[:, [0, 1]], patch_faces[:, [1, 2]], patch_faces[:, [2, 0]]], axis=1)  # (P, 3, 2)
-    same = np.isin(pe[..., 0] * n + pe[..., 1], rim_keys).sum(1)
-    opposite = np.isin(pe[..., 1] * n + pe[..., 0], rim_keys).sum(1)
+    same = isin(pe[..., 0] * n + pe[..., 1], rim_keys).sum(1)
+    opposite = isin(pe[..., 1] * n + pe[..., 0], rim_keys).sum(1)
     labels = trimesh.graph.connected_component_labels(
         trimesh.Trimesh(np.zeros((n, 3)), patch_faces, process=False).face_adjacency, node_count=len(patch_faces))
     vote = np.bincount(labels, weights=opposite - same)

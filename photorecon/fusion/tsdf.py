@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import math
-
 import warnings
 from dataclasses import replace
 
@@ -23,6 +22,7 @@ import numpy as np
 import trimesh
 from numba import njit, prange
 
+from ..arrays import unique_rows, unique_sorted
 from ..cameras import backproject_depth, camera_center
 from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
 from ..progress import bar
@@ -42,7 +42,7 @@ def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np
     """Unique ``_cell_keys`` of the voxel blocks that the frames' sampled surface points, moved by -trunc, 0 and
     +trunc along their rays (the truncation band), fall in (with ``trunc`` = 0: the surface's blocks)."""
     block = voxel * _BLOCK_RES
-    keys = np.zeros(0, np.int64)
+    keys = [np.zeros(0, np.int64)]
     for f in frames:
         pts = _sample_depth_points(f, 20000)
         if not len(pts):
@@ -50,8 +50,8 @@ def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np
         ray = pts - camera_center(f.view.cam_from_world)
         ray /= np.linalg.norm(ray, axis=1, keepdims=True)
         shifts = (-trunc, 0.0, trunc) if trunc > 0 else (0.0,)
-        keys = np.union1d(keys, _cell_keys(np.concatenate([pts + s * ray for s in shifts]), block))
-    return keys
+        keys.append(unique_sorted(_cell_keys(np.concatenate([pts + s * ray for s in shifts]), block)))
+    return unique_sorted(np.concatenate(keys))
 
 
 # Marching cubes' faces per voxel block that the surface crosses (a block of 16^3 voxels; measured: 300 on the
@@ -343,7 +343,7 @@ def _normal_band_blocks(f: DepthFrame, coords: np.ndarray, voxel: float, trunc: 
     u = rays[far] @ f.view.cam_from_world[:3, :3]  # camera -> world directions
     P = pts[far][idx] + t[:, None] * u[idx]
     extra = np.floor(P / block).astype(np.int32)
-    return np.ascontiguousarray(np.unique(np.concatenate([coords.astype(np.int32), extra]), axis=0))
+    return np.ascontiguousarray(unique_rows(np.concatenate([coords.astype(np.int32), extra])))
 
 
 def planar_normals(f: DepthFrame, trunc: float, min_cos: float, tol: float, min_px: float = 2.0,
@@ -360,45 +360,66 @@ def planar_normals(f: DepthFrame, trunc: float, min_cos: float, tol: float, min_
     most ``max_px``; ``min_px`` for a limb, whose Q falls on the pixel itself) have a depth within ``tol``
     (scene units) of the pixel's tangent plane. A pixel whose normal faces its ray (cos near 1) is kept: its
     plane's distance is the distance along the ray. Camera frame, OpenCV axes; pinhole intrinsics."""
-    d = f.depth
-    H, W = d.shape
     intr = f.view.intrinsics
-    n_all = np.asarray(f.normal, np.float32)
-    ok = (d > 0) & (np.einsum("hwc,hwc->hw", n_all, n_all) > 0.25)
-    rows, cols = np.nonzero(ok)
-    x = (cols - intr.cx) / intr.fx
-    y = (rows - intr.cy) / intr.fy
-    z = d[rows, cols].astype(np.float64)
-    n = n_all[rows, cols].astype(np.float64)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    ray = np.stack([x, y, np.ones_like(x)], 1)
-    n *= -np.sign(np.einsum("ij,ij->i", n, ray))[:, None]  # towards the camera
-    norm = np.linalg.norm(ray, axis=1)
-    cos = -np.einsum("ij,ij->i", n, ray) / norm
-    s = trunc / np.maximum(cos, min_cos)
-    # image direction of n at X (pixels per unit length along n), and Q's offset from the pixel
-    g = np.stack([intr.fx * (n[:, 0] - x * n[:, 2]), intr.fy * (n[:, 1] - y * n[:, 2])], 1) / z[:, None]
-    g_len = np.linalg.norm(g, axis=1)
-    Q = ray * (z + s / norm)[:, None] + (s * cos)[:, None] * n  # X + s (unit ray) + s cos n
-    Q[:, :2] = Q[:, :2] / Q[:, 2:3]
-    offset = np.hypot((Q[:, 0] - x) * intr.fx, (Q[:, 1] - y) * intr.fy)
-    reach = np.clip(offset, min_px, max_px)
-    plane_d = z * np.einsum("ij,ij->i", n, ray)  # n . X
-    frontal = g_len * z < 1e-3 * 0.5 * (intr.fx + intr.fy)
-    direction = g / np.maximum(g_len, 1e-12)[:, None]
-    keep = np.ones(len(rows), bool)
-    for t in (0.5, 1.0):
-        uu = np.round(cols + t * reach * direction[:, 0]).astype(np.int64)
-        vv = np.round(rows + t * reach * direction[:, 1]).astype(np.int64)
-        inside = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
-        uc, vc = np.clip(uu, 0, W - 1), np.clip(vv, 0, H - 1)
-        dq = d[vc, uc].astype(np.float64)
-        xq, yq = (uc - intr.cx) / intr.fx, (vc - intr.cy) / intr.fy
-        off = dq * (n[:, 0] * xq + n[:, 1] * yq + n[:, 2]) - plane_d
-        keep &= frontal | (inside & (dq > 0) & (np.abs(off) <= tol))
+    n_all = np.ascontiguousarray(f.normal, np.float32)
     out = np.zeros_like(n_all)
-    out[rows[keep], cols[keep]] = n_all[rows[keep], cols[keep]]
+    _planar_normals_kernel(np.ascontiguousarray(f.depth), n_all, float(intr.fx), float(intr.fy), float(intr.cx),
+                           float(intr.cy), float(trunc), float(min_cos), float(tol), float(min_px), float(max_px), out)
     return out
+
+
+@njit(parallel=True, cache=True)
+def _planar_normals_kernel(d, n_all, fx, fy, cx, cy, trunc, min_cos, tol, min_px, max_px, out):  # pragma: no cover - compiled
+    """``planar_normals`` per pixel (rows in parallel): ``out`` gets ``n_all`` where the test keeps it."""
+    H, W = d.shape
+    thresh = 1e-3 * 0.5 * (fx + fy)
+    for r in prange(H):
+        for c in range(W):
+            dv = d[r, c]
+            a0, a1, a2 = n_all[r, c, 0], n_all[r, c, 1], n_all[r, c, 2]
+            if not (dv > 0 and a0 * a0 + a1 * a1 + a2 * a2 > np.float32(0.25)):
+                continue
+            x = (c - cx) / fx
+            y = (r - cy) / fy
+            z = np.float64(dv)
+            n0, n1, n2 = np.float64(a0), np.float64(a1), np.float64(a2)
+            nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
+            sg = -np.sign(n0 * x + n1 * y + n2)  # towards the camera
+            n0, n1, n2 = n0 * sg, n1 * sg, n2 * sg
+            norm = math.sqrt(x * x + y * y + 1.0)
+            nr = n0 * x + n1 * y + n2
+            cos = -nr / norm
+            s = trunc / max(cos, min_cos)
+            # image direction of n at X (pixels per unit length along n), and Q's offset from the pixel
+            g0 = fx * (n0 - x * n2) / z
+            g1 = fy * (n1 - y * n2) / z
+            g_len = math.sqrt(g0 * g0 + g1 * g1)
+            zs = z + s / norm
+            sc = s * cos
+            q2 = zs + sc * n2
+            q0 = (x * zs + sc * n0) / q2
+            q1 = (y * zs + sc * n1) / q2
+            offset = math.hypot((q0 - x) * fx, (q1 - y) * fy)
+            reach = min(max(offset, min_px), max_px)
+            plane_d = z * nr  # n . X
+            frontal = g_len * z < thresh
+            gl = max(g_len, 1e-12)
+            dir0, dir1 = g0 / gl, g1 / gl
+            keep = True
+            for t in (0.5, 1.0):
+                uu = np.int64(np.rint(c + t * reach * dir0))
+                vv = np.int64(np.rint(r + t * reach * dir1))
+                inside = uu >= 0 and uu < W and vv >= 0 and vv < H
+                uc = min(max(uu, 0), W - 1)
+                vc = min(max(vv, 0), H - 1)
+                dq = np.float64(d[vc, uc])
+                xq = (uc - cx) / fx
+                yq = (vc - cy) / fy
+                off = dq * (n0 * xq + n1 * yq + n2) - plane_d
+                keep = keep and (frontal or (inside and dq > 0 and abs(off) <= tol))
+            if keep:
+                out[r, c, 0], out[r, c, 1], out[r, c, 2] = a0, a1, a2
 
 
 def _frame_blocks(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float
@@ -478,7 +499,7 @@ def chunk_core(V: np.ndarray, F: np.ndarray, C: np.ndarray | None, lo: np.ndarra
     only the vertices they use (colours ``C`` with them). Chunks that share a boundary keep each triangle once."""
     cen = V[F].mean(axis=1)
     F = F[np.all((cen >= lo) & (cen < hi), axis=1)]
-    used = np.unique(F)
+    used = unique_sorted(F)
     remap = np.full(len(V), -1, np.int64)
     remap[used] = np.arange(len(used))
     return V[used], remap[F], (C[used] if C is not None else None)
@@ -532,7 +553,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         plans.append((coords, keep, weighted, ones))
         del f, g
     del probe
-    allb = np.unique(np.concatenate([p[0] for p in plans]), axis=0)
+    allb = unique_rows(np.concatenate([p[0] for p in plans]))
     per_block = _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # storage, and marching cubes' buffers
     chunk = None
     if budget and len(allb) * per_block > budget:
@@ -542,7 +563,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     if chunk is None:
         boxes = [(None, None, len(allb))]
     else:
-        ids = np.unique(np.floor_divide(allb, chunk), axis=0)
+        ids = unique_rows(np.floor_divide(allb, chunk))
         boxes = [(i * chunk, (i + 1) * chunk, None) for i in ids]
     pieces = []
     for lo, hi, count in bar(boxes, desc="tsdf fusion", unit="chunk") if chunk else boxes:
@@ -583,7 +604,7 @@ def _chunk_size(blocks: np.ndarray, max_blocks: int) -> int:
     span = int((blocks.max(0) - blocks.min(0)).max()) + 1
     size = 1 << max(1, int(np.ceil(np.log2(max(span, 2)))))
     while size > 2:
-        ids, counts = np.unique(np.floor_divide(blocks, size), axis=0, return_counts=True)
+        ids, counts = unique_rows(np.floor_divide(blocks, size), return_counts=True)
         worst = ids[np.argmax(counts)]
         if counts.max() * ((size + 2) / size) ** 2 <= max_blocks and \
                 _in_box(blocks, worst * size - 1, (worst + 1) * size + 1).sum() <= max_blocks:

@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 import trimesh
 
+from ..arrays import isin, unique_sorted
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
 from ..io.atomic import atomic_path
 from ..fields import check_config
@@ -239,7 +240,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
         T = np.asarray(m.triangles)
         main_tris = main[labels]
         main_T = T[main_tris]
-        main_v = np.unique(main_T)
+        main_v = unique_sorted(main_T)
         # the scene's size: area-weighted triangle centres of the main surface, robust to its own outliers
         centres = face_centres(V, main_T)
         w = np.linalg.norm(face_cross(V, main_T), axis=1)
@@ -257,7 +258,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
         order = np.argsort(labels, kind="stable")
         bounds = np.searchsorted(labels[order], np.arange(n + 1))
         for c in small:
-            verts = np.unique(T[order[bounds[c]:bounds[c + 1]]])
+            verts = unique_sorted(T[order[bounds[c]:bounds[c + 1]]])
             if len(verts) > 2000:
                 verts = rng.choice(verts, 2000, replace=False)
             gap = float(tree.query(V[verts], k=1)[0].min())
@@ -403,7 +404,7 @@ def harmonic_fill(n_vertices: int, edges: np.ndarray, known: np.ndarray, values:
     A.data[:] = 1.0
     # only unknown vertices in a component with a known one are solvable
     _, comp = connected_components(A, directed=False)
-    reach = np.isin(comp, np.unique(comp[is_known]))
+    reach = isin(comp, comp[is_known])
     free = np.flatnonzero(~is_known & reach)
     if not len(free):
         return out

@@ -26,6 +26,7 @@ import numpy as np
 import trimesh
 from numba import njit
 
+from ..arrays import isin, unique_sorted
 from .geometry import edge_keys, face_areas, face_cross, face_edge_keys, face_edges, triangle_components
 
 log = logging.getLogger("photorecon")
@@ -334,12 +335,12 @@ def _fair(V: np.ndarray, faces: np.ndarray, patch: np.ndarray, n_old: int, floor
     n_new = len(V) - n_old
     if n_new <= 0:
         return V
-    rim = np.unique(patch[patch < n_old])
+    rim = unique_sorted(patch[patch < n_old])
     near = np.zeros(n_old, bool)
     near[rim] = True
     ring = faces[near[faces].any(1)]  # the observed faces around the rims: the rim vertices' full 1-ring
     G = np.concatenate([ring, patch])
-    used = np.unique(G)  # local numbering: the fixed vertices, then the new ones (all of them are in G)
+    used = unique_sorted(G)  # local numbering: the fixed vertices, then the new ones (all of them are in G)
     nf = int(np.searchsorted(used, n_old))
     loc = np.full(len(V), -1, np.int64)
     loc[used] = np.arange(len(used))
@@ -434,7 +435,7 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
         per_hole = np.maximum(target, np.sqrt(area / (REFINED_FACE_AREA * max_faces)))
         target = np.repeat(per_hole, [len(p) for p in pieces])
     # every edge of the observed mesh is locked (rims, and any chord the ear clipping could not avoid)
-    locked = np.unique(edge_keys(rim_e[:, 0], rim_e[:, 1], len(Vs)))
+    locked = unique_sorted(edge_keys(rim_e[:, 0], rim_e[:, 1], len(Vs)))
     V, patch = _refine(Vs, patch, locked, target)
     V = _fair(V, F0, patch, n0, floor)
     V[:n0] = V0  # the observed surface exactly as it was
@@ -443,9 +444,9 @@ def fill_loops(mesh: trimesh.Trimesh, loops: list[np.ndarray], normals: np.ndarr
         from .clean import harmonic_fill
 
         pe = face_edges(patch)
-        known = np.unique(patch[patch < n0])
+        known = unique_sorted(patch[patch < n0])
         # a graph of the patch vertices only (the rims known)
-        used = np.unique(patch)
+        used = unique_sorted(patch)
         remap = np.full(len(V), -1, np.int64)
         remap[used] = np.arange(len(used))
         vals = harmonic_fill(len(used), remap[pe], remap[known], np.asarray(colors, np.float64)[known])
@@ -726,7 +727,7 @@ def _drop_overused(mesh: trimesh.Trimesh, new_from: int = 0) -> trimesh.Trimesh:
     fwd = e[:, 0] < e[:, 1]
     fid = np.tile(np.arange(len(F)), 3)
     if new_from > 0:  # the edges the new faces use, with every face on them
-        on = np.isin(k, k[fid >= new_from])
+        on = isin(k, k[fid >= new_from])
         k, fwd, fid = k[on], fwd[on], fid[on]
     order = np.lexsort((fid, k))  # by edge, then by face: the observed faces first
     ks, fw = k[order], fwd[order]
@@ -762,9 +763,9 @@ def _closed_components(mesh: trimesh.Trimesh, min_share: float = 0.5) -> trimesh
     if not len(e):
         return mesh
     n = len(mesh.vertices)
-    open_face = np.isin(face_edge_keys(F, n), edge_keys(e[:, 0], e[:, 1], n)).reshape(3, -1).any(0)
-    open_comp = np.unique(labels[open_face])
-    keep = ~np.isin(labels, open_comp)
+    open_face = isin(face_edge_keys(F, n), edge_keys(e[:, 0], e[:, 1], n)).reshape(3, -1).any(0)
+    open_comp = unique_sorted(labels[open_face])
+    keep = ~isin(labels, open_comp)
     area = face_areas(np.asarray(mesh.vertices, np.float64), F)
     if not keep.any() or area[keep].sum() < min_share * area.sum():
         return mesh
@@ -821,7 +822,7 @@ def poisson_closed(mesh: trimesh.Trimesh, floor=None) -> trimesh.Trimesh:
 
     V = np.asarray(mesh.vertices, np.float64)
     F = np.asarray(mesh.faces, np.int64)
-    used = np.unique(F)
+    used = unique_sorted(F)
     e = face_edges(F)
     edge = float(np.median(np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1)))
     N = np.asarray(mesh.vertex_normals, np.float64)[used]
