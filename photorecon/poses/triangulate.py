@@ -50,7 +50,7 @@ class TriangulateConfig:
         "help": "contrast normalisation of the images feature extraction sees (dark or low-contrast photos give few features otherwise); point colours come from the originals"})
     use_alpha_mask: bool = field(default=True, metadata={"help": "no features where an image's alpha channel is 0"})
     min_points: int = field(default=50, metadata={"help": "fewer triangulated points than this: warn and return the model unchanged", "range": (0, 100_000_000)})
-    threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)", "range": (1, 4096), "also": (-1,)})
+    threads: int = field(default=-1, metadata={"help": "SIFT extraction threads (-1 = all cores; the matching and the triangulation run on one thread: the same points run after run)", "range": (1, 4096), "also": (-1,)})
     seed: int = field(default=0, metadata={"help": "random seed of the pairs' RANSAC and of the triangulator (the same points run after run, as SfM's --seed)", "range": (0, 2**31 - 1)})
 
     def __post_init__(self):
@@ -302,7 +302,9 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     if matcher == "auto":
         matcher = "exhaustive" if len(views) <= cfg.exhaustive_max else "overlap"
     mopt = pycolmap.FeatureMatchingOptions()
-    mopt.num_threads = cfg.threads
+    # one thread: the matcher's threads write the pairs into the database in the order they finish, and the
+    # triangulator builds its tracks in the database's order (the same points need the same order)
+    mopt.num_threads = 1
     vopt = pycolmap.TwoViewGeometryOptions()
     vopt.ransac.random_seed = cfg.seed  # each pair's RANSAC seeded: the same inliers, the same points, run after run
     pycolmap.set_random_seed(cfg.seed)
@@ -340,7 +342,10 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     # sparse capture may have too few longer ones: then the two-view tracks count too
     for two_view in ((True,) if len(views) == 2 else (False, True)):
         opt = pycolmap.IncrementalPipelineOptions()
-        opt.num_threads = cfg.threads
+        # one thread: the bundle adjustment's threads sum residuals in any order, and a point near the
+        # reprojection filter's threshold then stays in one run and goes in the next; with the poses fixed,
+        # this step is a small part of the triangulation's time
+        opt.num_threads = 1
         opt.random_seed = cfg.seed
         opt.extract_colors = False  # the working copies are contrast-normalised: colours come from the originals
         opt.triangulation.ignore_two_view_tracks = not two_view
