@@ -78,9 +78,10 @@ def from_os_error(exc: OSError, out=None) -> PhotoreconError:
             inside_out = Path(exc.filename).resolve().is_relative_to(Path(out).resolve())
         except (OSError, ValueError):
             pass
-    if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):  # the file may be the source of a copy: name out
-        return OutputError(f"{out or name}: no space left on device ({what}); free some space or choose an output "
-                           "folder on another device")
+    from .io.space import is_no_space, no_space_error
+
+    if is_no_space(exc):  # a full disk (numpy's short write has no errno nor file); the file may be a copy's source
+        return no_space_error(out or exc.filename or ".")
     if inside_out or exc.errno == errno.EROFS:
         return OutputError(f"{name}: {what}; check the output folder's space and permissions")
     return InputDataError(f"{name}: {what}")

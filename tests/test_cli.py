@@ -74,3 +74,6 @@ def test_os_errors_are_named_and_classed(tmp_path):
     e = from_os_error(FileNotFoundError(errno.ENOENT, "No such file", "/data/img.png"), out=tmp_path / "out")
     assert isinstance(e, InputDataError) and "/data/img.png" in str(e)
     assert isinstance(from_os_error(OSError(errno.ENOSPC, "No space left on device", "/tmp/x"), None), OutputError)
+    # numpy's short write on a full disk (no errno, no file name): the output folder and "no space"
+    e = from_os_error(OSError("7632075 requested and 5242816 written"), out=tmp_path / "out")
+    assert isinstance(e, OutputError) and "no space left" in str(e) and str(tmp_path / "out") in str(e)
