@@ -13,6 +13,7 @@ import logging
 import numpy as np
 import trimesh
 
+from ..arrays import position_order
 from ..cameras import View
 from ..errors import BadArgumentError, EmptyMeshError
 from ..fields import expect_config
@@ -91,10 +92,8 @@ def canonical_order(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     stitching) emits the same triangles in an order that changes between runs, and the cleaning and the files
     would follow it (``fuse`` returns its meshes in this order)."""
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
-    rank = np.empty(len(order), dtype=f.dtype)
-    rank[order] = np.arange(len(order), dtype=f.dtype)
-    f = rank[f]
+    order, rank = position_order(v)
+    f = rank.astype(f.dtype)[f]
     first = f.argmin(axis=1)
     f = np.take_along_axis(f, (first[:, None] + np.arange(3)) % 3, axis=1)
     f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]

@@ -10,8 +10,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import trimesh
 
+from ..arrays import key_rows, row_keys, unique_rows, unique_sorted
 from ..cameras import View
-from ..arrays import unique_rows, unique_sorted
 from ..errors import NoDepthError
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
 from .frames import load_frame, nonempty
@@ -44,9 +44,8 @@ def _sample_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> np.n
     if not len(k):
         return np.zeros((0, 3), np.int64)
     off = np.stack(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij"), -1).reshape(-1, 3)
-    k = unique_sorted(k[:, None] + ((off[:, 0] << 42) + (off[:, 1] << 21) + off[:, 2])[None])
-    mask = (1 << 21) - 1  # unpack _cell_keys' 21-bit fields
-    return np.stack([(k >> 42) & mask, (k >> 21) & mask, k & mask], 1) - (1 << 20)
+    step = row_keys(off) - row_keys(np.zeros((1, 3)))  # what each neighbour's offset adds to a key
+    return key_rows(unique_sorted(k[:, None] + step[None]))
 
 
 def plan_chunks(frames: list[DepthFrame], voxel: float, trunc: float, chunk_blocks: int) -> list[tuple[tuple[int, int, int], int]]:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..arrays import unique_sorted
+from ..arrays import row_keys, unique_sorted
 from ..cameras import backproject_depth, camera_center
 from ..errors import EmptyMeshError, NoDepthError
 from ..progress import bar
@@ -68,8 +68,8 @@ def grid_mesh_view(frame: DepthFrame, max_stretch: float | None = 8.0) -> trimes
 
 
 def _cell_keys(points: np.ndarray, cell: float) -> np.ndarray:
-    k = np.floor(points / cell).astype(np.int64) + (1 << 20)
-    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+    """``row_keys`` of the cells of size ``cell`` that ``points`` fall in."""
+    return row_keys(np.floor(points / cell))
 
 
 def grid_fuse(frames: list[DepthFrame], cfg: FusionConfig) -> trimesh.Trimesh:

@@ -24,6 +24,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from ..arrays import position_order
 from ..cameras import View
 from ..conventions import colmap_from_intrinsics
 from ..errors import BadArgumentError, InputDataError, OutputError
@@ -441,10 +442,9 @@ def _to_model(rec, views: list[View], names: list[str]) -> tuple[SparseModel, fl
     xyz = np.array([rec.points3D[int(i)].xyz for i in pids], float).reshape(-1, 3)
     rgb = np.array([rec.points3D[int(i)].color for i in pids], np.uint8).reshape(-1, 3)
     err = np.array([rec.points3D[int(i)].error for i in pids], float)
-    # numbered by position: the triangulator's threads number the same points in a different order each run
-    order = np.lexsort((xyz[:, 2], xyz[:, 1], xyz[:, 0]))
-    rank = np.empty(len(pids), np.int64)
-    rank[order] = np.arange(1, len(pids) + 1)
+    # numbered by position (1, 2, ...), not in the order COLMAP created them
+    order, rank = position_order(xyz)
+    rank += 1
     for name, (xy, ids) in obs.items():
         seen = ids >= 0
         new = ids.copy()
