@@ -91,13 +91,48 @@ def test_textureless_hole_between_confirmed_neighbours_is_filled_to_the_truth():
     assert (r.confidence[hole & filled] >= 0.25).all()
 
 
-def test_hole_larger_than_the_limit_stays_empty():
+def test_hole_larger_than_the_limit_keeps_its_inside_empty():
     hole = _box(24, 48, 36, 60)  # 576 pixels
     assert not fillable_holes(np.where(hole, 0, 1.0), None, 400).any()
-    r, _, filled, _ = _fill([TILTED], hole, max_hole=400)
-    assert not filled.any() and (r.depth[hole] == 0).all()
+    r, truth, filled, stats = _fill([TILTED], hole, max_hole=400)
+    inner = ndi.binary_erosion(hole, np.ones((3, 3), bool))  # not next to a kept depth
+    assert stats["hole_pixels"] == (hole & ~inner).sum()  # only its rim is looked at
+    assert not filled[inner].any() and (r.depth[inner] == 0).all()
+    assert filled[hole & ~inner].mean() > 0.9  # the rim, on a textured plane, takes its neighbours' plane
+    err = np.abs(r.depth[filled] - truth[filled]) / truth[filled]
+    assert err.max() < 0.005, err.max()
     _, _, filled, _ = _fill([TILTED], hole, max_hole=600)  # the same hole under a larger limit is filled
     assert filled[hole].mean() > 0.95
+
+
+def test_plain_background_beside_an_edge_does_not_take_the_edges_plane():
+    # a textured near plane (z = 1.5) covering world x >= 0.1 before a plain grey wall (z = 3): the wall has no
+    # depth in the left view (a gap far over the limit) and the right view's depth map has the near plane
+    # "fattened" 6 px onto the wall, as PatchMatch's windows leave it; in the top half the near plane lost its
+    # first column
+    near = (np.array([0.0, 0.0, 1.0]), 1.5, (0.1, 10.0))
+    far = (np.array([0.0, 0.0, 1.0]), 3.0, None)
+    dA, nA, gA = _render(0.0, [near, far])
+    dB, nB, gB = _render(B, [near, far])
+    rng = np.random.default_rng(1)
+    gA, gB = (np.where(d > 2.0, 0.5 + rng.normal(0, 0.005, d.shape), g).astype(np.float32)
+              for d, g in ((dA, gA), (dB, gB)))  # the wall plain grey, with the camera noise
+    near_a = dA < 2.0
+    first = near_a & ~np.roll(near_a, 1, axis=1)  # the near plane's first column in the left view
+    first[H // 2:] = False
+    depth = np.where(near_a & ~first, dA, 0).astype(np.float32)
+    fat = ndi.binary_dilation(dB < 2.0, np.ones((1, 3), bool), iterations=6)
+    dB = np.where(fat, 1.5, dB).astype(np.float32)
+    nB[fat] = (0, 0, -1)
+    wall_rim = ~near_a & ndi.binary_dilation(depth > 0, np.ones((3, 3), bool))  # the wall's pixels next to depth
+    r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
+    src = {"b": DepthResult(dB, None, _view("b", B), ["a"], nB)}
+    cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
+    filled, stats = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
+    assert wall_rim.sum() > 30 and first.sum() > 30 and stats["hole_pixels"] == (first | wall_rim).sum()
+    assert filled[first].mean() > 0.6  # the textured plane's own edge comes back ...
+    assert np.abs(r.depth[first & filled] - 1.5).max() < 0.01
+    assert filled[wall_rim].mean() < 0.1, filled[wall_rim].mean()  # ... the plain wall beside it does not take it
 
 
 def test_hole_touching_the_image_border_or_the_mask_is_not_fillable():

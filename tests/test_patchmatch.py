@@ -41,6 +41,19 @@ def test_ncc_kernel_matches_slow_reference(radius, checker):
         got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
         want = ncc_cost_reference(ref, src, x, y, Hm, radius, 2, 3.0, 0.1, checker=checker)
         assert abs(got - want) < 1e-5, (x, y, got, want)
+    # a centre on the source's last row or column a hair beyond it in floating point (a rectified pair's border
+    # row) is on the image: its samples are clamped, and the image matches itself there; a tenth of a pixel
+    # beyond is off it
+    for x, y, tx, ty in ((20, 39, 0.0, 1e-9), (49, 20, 1e-9, 0.0), (49, 39, 1e-7, 1e-7), (0, 0, -1e-9, -1e-9)):
+        Hm = np.array([[1.0, 0, tx], [0, 1.0, ty], [0, 0, 1.0]])
+        got = K.ncc_at(ref, src, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5)
+        want = ncc_cost_reference(ref, src, x, y, Hm, radius, 2, 3.0, 0.1, checker=checker)
+        assert got < 2.0 and abs(got - want) < 1e-5, (x, y, got, want)
+        assert K.ncc_at(ref, ref, x, y, Hm.ravel(), sdy, sdx, sspat, 0.1, 1e-5) < 1e-4
+        off = np.array([[1.0, 0, 10 * tx], [0, 1.0, 10 * ty], [0, 0, 1.0]]) if tx + ty > 0 else None
+        if off is not None:
+            off[:2, 2] = np.sign(off[:2, 2]) * 0.1
+            assert K.ncc_at(ref, ref, x, y, off.ravel(), sdy, sdx, sspat, 0.1, 1e-5) == 2.0
     # identical windows cost 0; a window outside the source costs the maximum, 2
     assert K.ncc_at(ref, ref, 20, 20, np.eye(3).ravel(), sdy, sdx, sspat, 0.1, 1e-5) < 1e-6
     far = np.array([[1.0, 0, 500], [0, 1, 0], [0, 0, 1]])

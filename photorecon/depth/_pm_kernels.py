@@ -26,6 +26,8 @@ import numpy as np
 warnings.filterwarnings("ignore", message="The TBB threading layer requires")
 from numba import njit, prange  # noqa: E402
 
+EDGE_TOL = 1e-3  # pixels: a projection this far beyond the image's first or last pixel centre is on it
+
 N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
 N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)
 # pm_pass's per-row counts: pixels computed, pixels left as converged, NCC evaluations (candidates, refinement)
@@ -148,7 +150,8 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
     weights ``wk`` summing to ``sw``, weighted mean ``mr`` and variance ``vr``, largest |offset| ``rad``) and ``img`` sampled through the
     homography ``h`` (9 values, row-major), linearised at the window's centre (an affine map: over an
     11-pixel window the perspective term is far below a hundredth of a pixel); 2 when the centre falls
-    outside the source image or behind it."""
+    outside the source image (beyond its first and last pixel centres by more than ``EDGE_TOL``: a rectified
+    pair's border row lands on the last one give or take rounding) or behind it."""
     hs, ws = img.shape
     hz = h[6] * x + h[7] * y + h[8]
     if hz <= 1e-12:
@@ -156,7 +159,7 @@ def _ncc(img, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var):
     iz = 1.0 / hz
     cx = (h[0] * x + h[1] * y + h[2]) * iz
     cy = (h[3] * x + h[4] * y + h[5]) * iz
-    if cx < 0.0 or cy < 0.0 or cx > ws - 1.0 or cy > hs - 1.0:
+    if cx < -EDGE_TOL or cy < -EDGE_TOL or cx > ws - 1.0 + EDGE_TOL or cy > hs - 1.0 + EDGE_TOL:
         return 2.0
     # Jacobian of the homography at the centre
     j00 = (h[0] - cx * h[6]) * iz

@@ -8,7 +8,8 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
 
 1. **Holes**: the 8-connected components of pixels without depth, inside the view's mask, not touching the
    image border, of at most ``fill_max_gap`` pixels (a larger gap is a surface the views do not see, or the
-   background).
+   background); and the rim of every larger gap, inside the mask: its pixels next to a kept depth (the pixels
+   a depth edge took from the surface beside it).
 2. **Candidates**: for each hole pixel, the planes (depth and PatchMatch normal) of the nearest confirmed pixel
    in each of 8 directions, extended to the pixel (fronto-parallel where the plane is seen edge-on); only
    neighbours whose straight path to the pixel runs through the hole.
@@ -19,7 +20,11 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
    ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths (their noise level: 0.007-0.012 on
    the synthetic pairs) and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
    Next to a depth edge the other view's depth map is "fattened" like the reference's, so the near side's plane
-   can be confirmed geometrically where the pixel shows the far side: the images tell them apart.
+   can be confirmed geometrically where the pixel shows the far side: the images tell them apart. A rim
+   pixel must also be told apart from its neighbours along the epipolar line: its grey difference at the
+   candidate's depth at least ``DISTINCT_GREY`` below that at the depths that move its projection by
+   ``DISTINCT_PX`` pixels either way (on a plain background beside an object, any depth matches as well: no
+   fill, where the 3x3 test alone let the object's plane spill onto it).
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
    candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
    confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
@@ -45,6 +50,8 @@ PHOTO_RATIO = 1.2  # ... and at most this factor above the lowest of the pixel's
 PHOTO_SAMPLES = 20000  # kept depths sampled for that quantile
 EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to the pixel's ray) -> fronto-parallel
 MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
+DISTINCT_PX = 4  # a candidate's depth must match the pixel better than the depths that shift it this far ...
+DISTINCT_GREY = 0.003  # ... by at least this grey difference (grey 0..1)
 DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
 
 
@@ -137,16 +144,16 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[np.ndarray, object]],
-                      py: np.ndarray, px: np.ndarray, z: np.ndarray) -> np.ndarray:
+                      py: np.ndarray, px: np.ndarray, z: np.ndarray, radius: int = 1) -> np.ndarray:
     """Per pixel (py, px) at depth z of view ``r`` (grey image ``grey``): the mean absolute grey difference of its
-    3x3 neighbourhood and the source images' (``images``: name -> (grey, view)) around its projection, the
-    lowest over the sources (occlusion-robust); +inf where it projects into none."""
+    neighbourhood (3x3; ``radius`` 0: the pixel alone) and the source images' (``images``: name -> (grey, view))
+    around its projection, the lowest over the sources (occlusion-robust); +inf where it projects into none."""
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     X = (np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T) * z[:, None]
     world_from_ref = np.linalg.inv(r.view.cam_from_world)
     Xw = X @ world_from_ref[:3, :3].T + world_from_ref[:3, 3]
     H, W = grey.shape
-    offs = [(oy, ox) for oy in (-1, 0, 1) for ox in (-1, 0, 1)]
+    offs = [(oy, ox) for oy in range(-radius, radius + 1) for ox in range(-radius, radius + 1)]
     ref = np.stack([grey[np.clip(py + oy, 0, H - 1), np.clip(px + ox, 0, W - 1)] for oy, ox in offs], 1)
     best = np.full(len(py), np.inf)
     for img, view in images.values():
@@ -157,12 +164,29 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
             u = (K[0, 0] * Xs[:, 0] + K[0, 1] * Xs[:, 1]) / Xs[:, 2] + K[0, 2]
             v = K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2]
         hs, ws = img.shape
-        ok = (Xs[:, 2] > 0) & (u >= 0) & (v >= 0) & (u <= ws - 1) & (v <= hs - 1)
+        tol = 1e-3  # a rectified pair's border row lands on the last one give or take rounding
+        ok = (Xs[:, 2] > 0) & (u >= -tol) & (v >= -tol) & (u <= ws - 1 + tol) & (v <= hs - 1 + tol)
         u0, v0 = np.nan_to_num(u), np.nan_to_num(v)
         src = np.stack([_bilinear(img, u0 + ox, v0 + oy) for oy, ox in offs], 1)
         e = np.abs(src - ref).mean(1)
         best = np.where(ok, np.minimum(best, e), best)
     return best
+
+
+def _epipolar_shift(r: DepthResult, view, py: np.ndarray, px: np.ndarray, z: np.ndarray, pixels: float) -> np.ndarray:
+    """Per pixel (py, px) of ``r`` at depth z: the relative depth change that moves its projection into ``view``
+    by ``pixels`` (to first order; 0 where it does not move)."""
+    ray = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64)).T
+    rel = view.cam_from_world @ np.linalg.inv(r.view.cam_from_world)
+    K = np.asarray(view.intrinsics.K, np.float64)
+    uv = []
+    for f in (1.0, 1.01):
+        Xs = (ray * (z * f)[:, None]) @ rel[:3, :3].T + rel[:3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv.append(np.stack([K[0, 0] * Xs[:, 0] / Xs[:, 2], K[1, 1] * Xs[:, 1] / Xs[:, 2]], 1))
+    moved = np.linalg.norm(uv[1] - uv[0], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.nan_to_num(np.minimum(0.01 * pixels / moved, 0.5), nan=0.0, posinf=0.0)
 
 
 def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
@@ -174,11 +198,16 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     ``r.confidence`` in place; returns the filled pixels (bool) and stats."""
     d = r.depth
     holes = fillable_holes(d, mask, cfg.fill_max_gap)
+    rim = ~(d > 0) & ~holes & ndi.binary_dilation(d > 0, np.ones((3, 3), bool))  # the larger gaps' edge pixels
+    if mask is not None:
+        rim &= mask
+    holes = holes | rim
     stats = {"hole_pixels": int(holes.sum()), "filled": 0}
     if not holes.any() or need < 1:
         return np.zeros(d.shape, bool), stats
     valid = d > 0
     py, px = np.nonzero(holes)
+    on_rim = rim[py, px]
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     n_dir = len(DIRECTIONS)
     z_c = np.zeros((n_dir, len(py)))
@@ -208,6 +237,17 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         cnt_c[k, ok] = cnt[py[ok], px[ok]]
         q_c[k, ok] = np.stack([qy[ok], qx[ok]], 1)
         e_c[k, ok] = photometric_error(grey, r, images, py[ok], px[ok], z)
+        # a rim pixel itself, at the candidate's depth and at depths 2..DISTINCT_PX pixels along the epipolar line
+        kr = np.flatnonzero(ok & on_rim)
+        if len(kr):
+            zr = z[on_rim[ok]]
+            e0 = photometric_error(grey, r, images, py[kr], px[kr], zr, radius=0)
+            e_alt = np.full(len(kr), np.inf)
+            for shift in range(2, int(DISTINCT_PX) + 1):
+                f = _epipolar_shift(r, next(iter(images.values()))[1], py[kr], px[kr], zr, shift)
+                for s in (1 - f, 1 + f):
+                    e_alt = np.minimum(e_alt, photometric_error(grey, r, images, py[kr], px[kr], zr * s, radius=0))
+            e_c[k, kr[e_alt < e0 + DISTINCT_GREY]] = np.inf
     vy, vx = np.nonzero(valid)
     step = max(1, len(vy) // PHOTO_SAMPLES)
     e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))

@@ -425,7 +425,7 @@ def ncc_cost_reference(ref: np.ndarray, src: np.ndarray, x: int, y: int, Hm: np.
     if c[2] <= 1e-12:
         return 2.0
     cx, cy = c[0] / c[2], c[1] / c[2]
-    if not (0 <= cx <= ws - 1 and 0 <= cy <= hs - 1):
+    if not (-1e-3 <= cx <= ws - 1 + 1e-3 and -1e-3 <= cy <= hs - 1 + 1e-3):  # _pm_kernels.EDGE_TOL
         return 2.0
     rs, ss, ws_ = [], [], []
     for iy, dy in enumerate(range(-radius, radius + 1, stride)):
