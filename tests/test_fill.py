@@ -7,7 +7,7 @@ from scipy import ndimage as ndi
 
 from photorecon.cameras import Intrinsics, View
 from photorecon.depth.config import DepthResult, MVSConfig
-from photorecon.depth.fill import fill_holes, fillable_holes
+from photorecon.depth.fill import fill_holes, fillable_holes, photometric_error
 
 W, H, F, B = 96, 72, 80.0, 0.3  # image size, focal length, baseline (x)
 INTR = Intrinsics(W, H, F, F, (W - 1) / 2, (H - 1) / 2)
@@ -98,7 +98,7 @@ def test_hole_larger_than_the_limit_keeps_its_inside_empty():
     inner = ndi.binary_erosion(hole, np.ones((3, 3), bool))  # not next to a kept depth
     assert stats["hole_pixels"] == (hole & ~inner).sum()  # only its rim is looked at
     assert not filled[inner].any() and (r.depth[inner] == 0).all()
-    assert filled[hole & ~inner].mean() > 0.9  # the rim, on a textured plane, takes its neighbours' plane
+    assert filled[hole & ~inner].mean() > 0.8  # the rim, on a textured plane, takes its neighbours' plane
     err = np.abs(r.depth[filled] - truth[filled]) / truth[filled]
     assert err.max() < 0.005, err.max()
     _, _, filled, _ = _fill([TILTED], hole, max_hole=600)  # the same hole under a larger limit is filled
@@ -202,3 +202,26 @@ def test_stereo_pair_fill_adds_correct_depth_without_more_wrong_depth(tmp_path_f
     before, after = scores[False], scores[True]
     assert after["within"] > before["within"] + 0.003, (before, after)
     assert after["bad"] <= before["bad"] + 0.001, (before, after)
+
+
+def test_photometric_error_next_to_a_depth_edge_is_the_noise_of_the_pixels_own_side():
+    # a textured strip (z = 1.5) before a textured wall (z = 3): wall pixels right next to the strip, seen by both
+    # views at the wall's depth, have a 3x3 neighbourhood that straddles the edge; the best 2x2 block holding the
+    # pixel lies on the wall's side, so the error stays at the images' noise level (0.005 each)
+    strip = (np.array([0.0, 0.0, 1.0]), 1.5, (-0.2, 0.1))
+    wall = (np.array([0.0, 0.0, 1.0]), 3.0, None)
+    dA, _, gA = _render(0.0, [strip, wall])
+    dB, _, gB = _render(B, [strip, wall])
+    va, vb = _view("a", 0.0), _view("b", B)
+    r = DepthResult(dA, None, va, ["b"], None)
+    on_wall = dA > 2.9
+    edge = on_wall & ndi.binary_dilation(~on_wall, np.ones((3, 3), bool))  # wall pixels touching the strip
+    py, px = np.nonzero(edge[5:-5, 5:-5])
+    py, px = py + 5, px + 5
+    # keep those the other view sees: their projection lands on the wall there too
+    u = px - F * B / dA[py, px]
+    seen = (u > 1) & (dB[py, np.clip(np.round(u).astype(int), 0, W - 1)] > 2.9)
+    py, px = py[seen], px[seen]
+    assert len(py) > 20
+    e = photometric_error(gA, r, {"b": (gB, vb)}, py, px, dA[py, px].astype(np.float64))
+    assert np.median(e) < 0.01 and np.quantile(e, 0.9) < 0.015, (np.median(e), np.quantile(e, 0.9))

@@ -16,7 +16,8 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
 3. **Evidence**: each candidate goes through the same geometric test as PatchMatch's own depths
    (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
    must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
-   3x3 neighbourhood and the matching sources' around its projection (the best source) must be at most the
+   neighbourhood (the best 2x2 block of its 3x3 that holds it) and the matching sources' around its
+   projection (the best source) must be at most the
    ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths (their noise level: 0.007-0.012 on
    the synthetic pairs) and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
    Next to a depth edge the other view's depth map is "fattened" like the reference's, so the near side's plane
@@ -52,6 +53,7 @@ EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to t
 MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
 DISTINCT_PX = 4  # a candidate's depth must match the pixel better than the depths that shift it this far ...
 DISTINCT_GREY = 0.003  # ... by at least this grey difference (grey 0..1)
+QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
 DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
 
 
@@ -146,8 +148,10 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[np.ndarray, object]],
                       py: np.ndarray, px: np.ndarray, z: np.ndarray, radius: int = 1) -> np.ndarray:
     """Per pixel (py, px) at depth z of view ``r`` (grey image ``grey``): the mean absolute grey difference of its
-    neighbourhood (3x3; ``radius`` 0: the pixel alone) and the source images' (``images``: name -> (grey, view))
-    around its projection, the lowest over the sources (occlusion-robust); +inf where it projects into none."""
+    neighbourhood and the source images' (``images``: name -> (grey, view)) around its projection, the lowest
+    over the sources (occlusion-robust); +inf where it projects into none. The neighbourhood: the best of the
+    four 2x2 blocks of its 3x3 that hold the pixel (shiftable windows: next to a depth edge one of them lies on
+    the pixel's own side); ``radius`` 0: the pixel alone."""
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     X = (np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T) * z[:, None]
     world_from_ref = np.linalg.inv(r.view.cam_from_world)
@@ -168,7 +172,11 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
         ok = (Xs[:, 2] > 0) & (u >= -tol) & (v >= -tol) & (u <= ws - 1 + tol) & (v <= hs - 1 + tol)
         u0, v0 = np.nan_to_num(u), np.nan_to_num(v)
         src = np.stack([_bilinear(img, u0 + ox, v0 + oy) for oy, ox in offs], 1)
-        e = np.abs(src - ref).mean(1)
+        a = np.abs(src - ref)
+        if radius == 1:  # the best of the four 2x2 quadrants that hold the pixel (shiftable windows)
+            e = np.min(np.stack([a[:, q].mean(1) for q in QUADRANTS], 1), axis=1)
+        else:
+            e = a.mean(1)
         best = np.where(ok, np.minimum(best, e), best)
     return best
 
