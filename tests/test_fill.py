@@ -225,3 +225,25 @@ def test_photometric_error_next_to_a_depth_edge_is_the_noise_of_the_pixels_own_s
     assert len(py) > 20
     e = photometric_error(gA, r, {"b": (gB, vb)}, py, px, dA[py, px].astype(np.float64))
     assert np.median(e) < 0.01 and np.quantile(e, 0.9) < 0.015, (np.median(e), np.quantile(e, 0.9))
+
+
+def test_hole_the_other_depth_map_misses_is_filled_only_where_the_images_are_clear():
+    # the other view has no depth at all (no geometric confirmation anywhere): a hole on the textured slanted plane
+    # is filled on the images' word alone, the same hole on a plain grey patch is not
+    hole = _box(30, 40, 40, 52)
+    for flat, want in ((None, True), ((-0.6, 0.6, -0.6, 0.6), False)):
+        dA, nA, gA = _render(0.0, [TILTED], flat)
+        _, nB, gB = _render(B, [TILTED], flat)
+        truth = dA.copy()
+        depth = dA.copy()
+        depth[hole] = 0
+        r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
+        src = {"b": DepthResult(np.zeros((H, W), np.float32), None, _view("b", B), ["a"], nB)}
+        cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
+        filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
+        if want:
+            assert filled[hole].mean() > 0.6, filled[hole].mean()
+            err = np.abs(r.depth[filled] - truth[filled]) / truth[filled]
+            assert err.max() < 0.005, err.max()
+        else:
+            assert filled[hole].mean() < 0.05, filled[hole].mean()

@@ -54,7 +54,7 @@ class MVSConfig:
     pm_same_normal_deg: float = field(default=1.5, metadata={"help": "patchmatch: normal tolerance of --pm-same-depth, degrees", "range": (0.0, 90.0)})
     geom_consistency: bool = field(default=True, metadata={"help": "patchmatch: geometric-consistency term between views (ACMM)"})
     geom_weight: float = field(default=0.2, metadata={"help": "patchmatch: weight of the geometric term (per pixel of reprojection error)", "range": (0.0, 100.0)})
-    fill_gaps: Literal["auto", "on", "off"] = field(default="auto", metadata={"help": "geometric filter: fill small gaps between kept depths with a neighbouring pixel's plane where the other views' depth maps confirm it as they confirm any depth and the images agree; auto = on for a view checked against one other view (a stereo pair)"})
+    fill_gaps: Literal["auto", "on", "off"] = field(default="auto", metadata={"help": "geometric filter: fill small gaps between kept depths, and the edges of larger ones, with a neighbouring pixel's plane where the other views' depth maps confirm it as they confirm any depth and the images agree, or where the images alone match it clearly (a pixel distinct along its epipolar line); auto = on for a view checked against one other view (a stereo pair)"})
     fill_max_gap: int = field(default=400, metadata={"help": "--fill-gaps: largest gap filled, pixels at the working resolution", "range": (1, 1 << 24)})
     planar_prior: bool = field(default=False, metadata={"help": "patchmatch: planar prior (ACMP): planes through confident pixels tried where the depth is not confident"})
     triangulate: bool = field(default=True, metadata={"help": "cameras without sparse points: triangulate SIFT matches with the cameras held fixed (view selection, depth ranges)"})

@@ -17,23 +17,25 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
    (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
    must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
    neighbourhood (the best 2x2 block of its 3x3 that holds it) and the matching sources' around its
-   projection (the best source) must be at most the
-   ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths (their noise level: 0.007-0.012 on
-   the synthetic pairs) and at most ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not.
-   Next to a depth edge the other view's depth map is "fattened" like the reference's, so the near side's plane
-   can be confirmed geometrically where the pixel shows the far side: the images tell them apart. A rim
-   pixel must also be told apart from its neighbours along the epipolar line: its grey difference at the
-   candidate's depth at least ``DISTINCT_GREY`` below that at the depths that move its projection by
-   ``DISTINCT_PX`` pixels either way (on a plain background beside an object, any depth matches as well: no
-   fill, where the 3x3 test alone let the object's plane spill onto it).
+   projection (the best source) must be at most the ``PHOTO_QUANTILE`` quantile of the same error at the
+   view's kept depths (their noise level: 0.007-0.012 on the synthetic pairs) and at most ``PHOTO_RATIO``
+   times the lowest of the pixel's candidates, confirmed or not. Next to a depth edge the other view's depth
+   map is "fattened" like the reference's, so the near side's plane can be confirmed geometrically where the
+   pixel shows the far side: the images tell them apart; and the same fattening hides the far side's plane
+   from the geometric test where the pixel does show it. So a candidate the depth maps do not confirm is still
+   taken on the images' word when the pixel is **distinct**: its own grey difference at the candidate's depth
+   at least ``DISTINCT_GREY`` below that at the depths that move its projection 2 to ``DISTINCT_PX`` pixels
+   either way along the epipolar line, and its neighbourhood's error at most the ``PHOTO_ONLY_QUANTILE``
+   quantile of the kept depths'. A rim pixel must be distinct in either case (on a plain background beside
+   an object any depth matches as well: without that test the object's plane spilled onto it).
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
    candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
    confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
 
-A filled depth has the same multi-view support as any kept depth: a gap that the other views do not see (an
-occlusion) or see otherwise stays a gap. On synthetic rectified pairs (``tools/bench_stereo.py``) the fill
-answers 0.5-0.7% more of the pixels both views see, almost all next to depth edges, and the share of answers
-off by more than 2 px of disparity stays as it was.
+A filled depth is supported by the other views' depth maps or by their images: a gap that the other views do
+not see (an occlusion) or see otherwise stays a gap. On synthetic rectified pairs (``tools/bench_stereo.py``)
+the fill answers about 1.6% more of the pixels both views see (knot, room), almost all next to depth edges, and
+the share of answers off by more than 2 px of disparity stays as it was.
 """
 from __future__ import annotations
 
@@ -51,6 +53,7 @@ PHOTO_RATIO = 1.2  # ... and at most this factor above the lowest of the pixel's
 PHOTO_SAMPLES = 20000  # kept depths sampled for that quantile
 EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to the pixel's ray) -> fronto-parallel
 MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
+PHOTO_ONLY_QUANTILE = 0.75  # without the other views' depth: at most this quantile of the kept depths' errors
 DISTINCT_PX = 4  # a candidate's depth must match the pixel better than the depths that shift it this far ...
 DISTINCT_GREY = 0.003  # ... by at least this grey difference (grey 0..1)
 QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
@@ -59,7 +62,7 @@ DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 
 
 def fill_on(cfg: MVSConfig, n_views: int) -> bool:
     """Whether a view checked against ``n_views`` other views gets the fill: ``fill_gaps`` on, or auto and one
-    view (a stereo pair: there it answers 0.5-0.7% more pixels within 2 px of disparity on the synthetic pairs of
+    view (a stereo pair: there it puts about 1.6% more pixels within 2 px of disparity on the synthetic pairs of
     ``tools/bench_stereo.py``, the share of wrong answers unchanged)."""
     return cfg.fill_gaps == "on" or (cfg.fill_gaps == "auto" and n_views == 1)
 
@@ -222,6 +225,7 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     cnt_c = np.zeros((n_dir, len(py)), np.int32)
     e_c = np.full((n_dir, len(py)), np.inf)
     q_c = np.full((n_dir, len(py), 2), -1, np.int64)
+    distinct = np.zeros((n_dir, len(py)), bool)
     for k, (dy, dx) in enumerate(DIRECTIONS):
         ny, nx = _nearest_in_direction(valid, dy, dx)
         qy, qx = ny[py, px], nx[py, px]
@@ -245,24 +249,25 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         cnt_c[k, ok] = cnt[py[ok], px[ok]]
         q_c[k, ok] = np.stack([qy[ok], qx[ok]], 1)
         e_c[k, ok] = photometric_error(grey, r, images, py[ok], px[ok], z)
-        # a rim pixel itself, at the candidate's depth and at depths 2..DISTINCT_PX pixels along the epipolar line
-        kr = np.flatnonzero(ok & on_rim)
-        if len(kr):
-            zr = z[on_rim[ok]]
-            e0 = photometric_error(grey, r, images, py[kr], px[kr], zr, radius=0)
-            e_alt = np.full(len(kr), np.inf)
-            for shift in range(2, int(DISTINCT_PX) + 1):
-                f = _epipolar_shift(r, next(iter(images.values()))[1], py[kr], px[kr], zr, shift)
-                for s in (1 - f, 1 + f):
-                    e_alt = np.minimum(e_alt, photometric_error(grey, r, images, py[kr], px[kr], zr * s, radius=0))
-            e_c[k, kr[e_alt < e0 + DISTINCT_GREY]] = np.inf
+        # the pixel itself, at the candidate's depth and at depths 2..DISTINCT_PX pixels along the epipolar line
+        kk = np.flatnonzero(ok)
+        e0 = photometric_error(grey, r, images, py[kk], px[kk], z, radius=0)
+        e_alt = np.full(len(kk), np.inf)
+        for shift in range(2, int(DISTINCT_PX) + 1):
+            f = _epipolar_shift(r, next(iter(images.values()))[1], py[kk], px[kk], z, shift)
+            for s in (1 - f, 1 + f):
+                e_alt = np.minimum(e_alt, photometric_error(grey, r, images, py[kk], px[kk], z * s, radius=0))
+        distinct[k, kk] = e_alt >= e0 + DISTINCT_GREY
+        e_c[k, kk[on_rim[kk] & ~distinct[k, kk]]] = np.inf
     vy, vx = np.nonzero(valid)
     step = max(1, len(vy) // PHOTO_SAMPLES)
     e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
     e_kept = e_kept[np.isfinite(e_kept)]
     e_max = float(np.quantile(e_kept, PHOTO_QUANTILE)) if len(e_kept) else 0.0
     e_min = np.min(np.where(z_c > 0, e_c, np.inf), axis=0)
-    confirmed = (cnt_c >= need) & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
+    e_only = float(np.quantile(e_kept, PHOTO_ONLY_QUANTILE)) if len(e_kept) else 0.0
+    seen = (cnt_c >= need) | (distinct & (e_c <= e_only))  # the other views' depth maps, or the images alone
+    confirmed = seen & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
     has = confirmed.any(0)
     lo = np.min(np.where(confirmed, z_c, np.inf), axis=0)
     hi = np.max(np.where(confirmed, z_c, -np.inf), axis=0)
