@@ -47,6 +47,7 @@ from scipy import ndimage as ndi
 from .config import DepthResult, MVSConfig
 from .filter import consistency_count
 
+FILL_PASSES = 2  # passes of the fill, each from the last one's result: a rim grows by a pixel a pass
 FILL_CONFIDENCE = 0.25  # a filled pixel's lowest confidence (its TSDF weight): a pair confirms with k = 1
 PHOTO_QUANTILE = 0.95  # a candidate's photometric error at most this quantile of the kept depths' own errors ...
 PHOTO_RATIO = 1.2  # ... and at most this factor above the lowest of the pixel's candidates (confirmed or not)
@@ -201,12 +202,30 @@ def _epipolar_shift(r: DepthResult, view, py: np.ndarray, px: np.ndarray, z: np.
 
 
 def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
-               images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+               images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None = None,
+               passes: int = FILL_PASSES) -> tuple[np.ndarray, dict]:
     """Fill the small holes of ``r`` (its depth after the geometric filter; its normals PatchMatch's) with
     neighbours' planes that at least ``need`` of ``sources`` confirm (``consistency_count`` with ``cfg``, the
-    filter's settings) and the images accept (``photometric_error`` of ``grey``, the view's image, against
-    ``images``, name -> (grey image, view) of its matching sources). Changes ``r.depth``, ``r.normal`` and
-    ``r.confidence`` in place; returns the filled pixels (bool) and stats."""
+    filter's settings) or the images alone do, and the images accept (``photometric_error`` of ``grey``, the
+    view's image, against ``images``, name -> (grey image, view) of its matching sources); up to ``passes``
+    times, each from what the one before filled (a rim grows by a pixel a pass). Changes ``r.depth``,
+    ``r.normal`` and ``r.confidence`` in place; returns the filled pixels (bool) and stats (``hole_pixels``:
+    the first pass's)."""
+    filled = np.zeros(r.depth.shape, bool)
+    stats: dict = {}
+    for p in range(max(1, passes)):
+        got, st = _fill_pass(r, sources, cfg, need, grey, images, mask)
+        filled |= got
+        stats = st if p == 0 else {**stats, "filled": stats["filled"] + st["filled"],
+                                   "conflicting": stats.get("conflicting", 0) + st.get("conflicting", 0)}
+        if not st["filled"]:
+            break
+    return filled, stats
+
+
+def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
+               images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None) -> tuple[np.ndarray, dict]:
+    """One pass of ``fill_holes``."""
     d = r.depth
     holes = fillable_holes(d, mask, cfg.fill_max_gap)
     rim = ~(d > 0) & ~holes & ndi.binary_dilation(d > 0, np.ones((3, 3), bool))  # the larger gaps' edge pixels
