@@ -248,3 +248,21 @@ def test_hole_the_other_depth_map_misses_is_filled_only_where_the_images_are_cle
             assert err.max() < 0.005, err.max()
         else:
             assert filled[hole].mean() < 0.05, filled[hole].mean()
+
+
+def test_a_plane_that_would_hide_what_the_other_view_saw_is_not_taken_on_the_images_word():
+    # _not_seen_through: a point in front of the surface the other view's depth map holds would block that view's
+    # ray (False); on the surface, behind it (hidden from that view) or where it has no depth, nothing says no
+    from photorecon.depth.fill import _not_seen_through
+
+    dA, nA, _ = _render(0.0, [TILTED])
+    dB, nB, _ = _render(B, [TILTED])
+    r = DepthResult(dA, None, _view("a", 0.0), ["b"], nA)
+    py, px = np.nonzero(_box(20, 50, 30, 60))
+    z = dA[py, px].astype(np.float64)
+    src = {"b": DepthResult(dB, None, _view("b", B), ["a"], nB)}
+    assert _not_seen_through(r, src, py, px, z, 0.01).all()
+    assert _not_seen_through(r, src, py, px, z * 1.2, 0.01).all()
+    assert not _not_seen_through(r, src, py, px, z * 0.8, 0.01).any()
+    empty = {"b": DepthResult(np.zeros_like(dB), None, _view("b", B), ["a"], nB)}
+    assert _not_seen_through(r, empty, py, px, z * 0.8, 0.01).all()

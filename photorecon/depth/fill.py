@@ -25,7 +25,8 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
    from the geometric test where the pixel does show it. So a candidate the depth maps do not confirm is still
    taken on the images' word when the pixel is **distinct**: its own grey difference at the candidate's depth
    at least ``DISTINCT_GREY`` below that at the depths that move its projection 2 to ``DISTINCT_PX`` pixels
-   either way along the epipolar line, and its neighbourhood's error at most the ``PHOTO_ONLY_QUANTILE``
+   either way along the epipolar line, where no source's depth map sees a surface behind the point (it would
+   hide what that view saw; ``FREE_TOL``), and its neighbourhood's error at most the ``PHOTO_ONLY_QUANTILE``
    quantile of the kept depths'. A rim pixel must be distinct in either case (on a plain background beside
    an object any depth matches as well: without that test the object's plane spilled onto it).
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
@@ -55,6 +56,7 @@ PHOTO_SAMPLES = 20000  # kept depths sampled for that quantile
 EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to the pixel's ray) -> fronto-parallel
 MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
 PHOTO_ONLY_QUANTILE = 0.75  # without the other views' depth: at most this quantile of the kept depths' errors
+FREE_TOL = 0.01  # a distinct pixel's plane must not hide, by more than this relative depth, what a source saw
 DISTINCT_PX = 4  # a candidate's depth must match the pixel better than the depths that shift it this far ...
 DISTINCT_GREY = 0.003  # ... by at least this grey difference (grey 0..1)
 QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
@@ -185,6 +187,29 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
     return best
 
 
+def _not_seen_through(r: DepthResult, sources: dict[str, DepthResult], py, px, z, tol: float) -> np.ndarray:
+    """Per pixel (py, px) of ``r`` at depth z: True unless a source's depth map sees a surface behind the point
+    (its depth at the point's projection more than ``tol`` (relative) beyond the point's own depth there: the
+    point would hide what that view saw)."""
+    ray = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64)).T
+    world_from_ref = np.linalg.inv(r.view.cam_from_world)
+    Xw = (ray * z[:, None]) @ world_from_ref[:3, :3].T + world_from_ref[:3, 3]
+    ok = np.ones(len(py), bool)
+    for s in sources.values():
+        T = s.view.cam_from_world
+        Xs = Xw @ T[:3, :3].T + T[:3, 3]
+        K = np.asarray(s.view.intrinsics.K, np.float64)
+        h, w = s.depth.shape
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.round(K[0, 0] * Xs[:, 0] / Xs[:, 2] + K[0, 1] * Xs[:, 1] / Xs[:, 2] + K[0, 2])
+            v = np.round(K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2])
+        inside = (Xs[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        ds = np.zeros(len(py))
+        ds[inside] = s.depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        ok &= ~(inside & (ds > Xs[:, 2] * (1 + tol)))
+    return ok
+
+
 def _epipolar_shift(r: DepthResult, view, py: np.ndarray, px: np.ndarray, z: np.ndarray, pixels: float) -> np.ndarray:
     """Per pixel (py, px) of ``r`` at depth z: the relative depth change that moves its projection into ``view``
     by ``pixels`` (to first order; 0 where it does not move)."""
@@ -277,6 +302,7 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
             for s in (1 - f, 1 + f):
                 e_alt = np.minimum(e_alt, photometric_error(grey, r, images, py[kk], px[kk], z * s, radius=0))
         distinct[k, kk] = e_alt >= e0 + DISTINCT_GREY
+        distinct[k, kk] &= _not_seen_through(r, sources, py[kk], px[kk], z, FREE_TOL)
         e_c[k, kk[on_rim[kk] & ~distinct[k, kk]]] = np.inf
     vy, vx = np.nonzero(valid)
     step = max(1, len(vy) // PHOTO_SAMPLES)
