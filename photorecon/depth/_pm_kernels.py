@@ -26,7 +26,7 @@ import numpy as np
 warnings.filterwarnings("ignore", message="The TBB threading layer requires")
 from numba import njit, prange  # noqa: E402
 
-EDGE_TOL = 1e-3  # pixels: a projection this far beyond the image's first or last pixel centre is on it
+from .config import EDGE_TOL  # noqa: E402
 
 N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
 N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)

@@ -11,6 +11,11 @@ import numpy as np
 from ..cameras import View
 from ..fields import check_config
 
+# pixels: a projection this far beyond an image's first or last pixel centre is on it (a rectified pair's border row
+# lands on the other view's last one give or take rounding); PatchMatch's NCC, its slow oracle and the gap fill's
+# photometric test
+EDGE_TOL = 1e-3
+
 
 @dataclass
 class MVSConfig:

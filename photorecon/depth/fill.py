@@ -46,7 +46,8 @@ import dataclasses
 import numpy as np
 from scipy import ndimage as ndi
 
-from .config import DepthResult, MVSConfig
+from ..cameras import backproject_pixels, project
+from .config import EDGE_TOL, DepthResult, MVSConfig
 from .filter import consistency_count
 
 FILL_PASSES = 2  # passes of the fill, each from the last one's result: a rim grows by a pixel a pass
@@ -175,8 +176,8 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
             u = (K[0, 0] * Xs[:, 0] + K[0, 1] * Xs[:, 1]) / Xs[:, 2] + K[0, 2]
             v = K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2]
         hs, ws = img.shape
-        tol = 1e-3  # a rectified pair's border row lands on the last one give or take rounding
-        ok = (Xs[:, 2] > 0) & (u >= -tol) & (v >= -tol) & (u <= ws - 1 + tol) & (v <= hs - 1 + tol)
+        ok = ((Xs[:, 2] > 0) & (u >= -EDGE_TOL) & (v >= -EDGE_TOL) & (u <= ws - 1 + EDGE_TOL)
+              & (v <= hs - 1 + EDGE_TOL))
         u0, v0 = np.nan_to_num(u), np.nan_to_num(v)
         src = np.stack([_bilinear(img, u0 + ox, v0 + oy) for oy, ox in offs], 1)
         a = np.abs(src - ref)
@@ -192,39 +193,26 @@ def _not_seen_through(r: DepthResult, sources: dict[str, DepthResult], py, px, z
     """Per pixel (py, px) of ``r`` at depth z: True unless a source's depth map sees a surface behind the point
     (its depth at the point's projection more than ``tol`` (relative) beyond the point's own depth there: the
     point would hide what that view saw)."""
-    ray = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64)).T
-    world_from_ref = np.linalg.inv(r.view.cam_from_world)
-    Xw = (ray * z[:, None]) @ world_from_ref[:3, :3].T + world_from_ref[:3, 3]
+    Xw = backproject_pixels(np.stack([px, py], 1), z, r.view.intrinsics, r.view.cam_from_world)
     ok = np.ones(len(py), bool)
     for s in sources.values():
-        T = s.view.cam_from_world
-        Xs = Xw @ T[:3, :3].T + T[:3, 3]
-        K = np.asarray(s.view.intrinsics.K, np.float64)
+        uv, zs = project(Xw, s.view.intrinsics, s.view.cam_from_world)
         h, w = s.depth.shape
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.round(K[0, 0] * Xs[:, 0] / Xs[:, 2] + K[0, 1] * Xs[:, 1] / Xs[:, 2] + K[0, 2])
-            v = np.round(K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2])
-        inside = (Xs[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        with np.errstate(invalid="ignore"):
+            u, v = np.round(uv[:, 0]), np.round(uv[:, 1])
+            inside = (zs > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
         ds = np.zeros(len(py))
         ds[inside] = s.depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
-        ok &= ~(inside & (ds > Xs[:, 2] * (1 + tol)))
+        ok &= ~(inside & (ds > zs * (1 + tol)))
     return ok
 
 
-def _epipolar_shift(r: DepthResult, view, py: np.ndarray, px: np.ndarray, z: np.ndarray, pixels: float) -> np.ndarray:
-    """Per pixel (py, px) of ``r`` at depth z: the relative depth change that moves its projection into ``view``
-    by ``pixels`` (to first order; 0 where it does not move)."""
-    ray = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64)).T
-    rel = view.cam_from_world @ np.linalg.inv(r.view.cam_from_world)
-    K = np.asarray(view.intrinsics.K, np.float64)
-    uv = []
-    for f in (1.0, 1.01):
-        Xs = (ray * (z * f)[:, None]) @ rel[:3, :3].T + rel[:3, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv.append(np.stack([K[0, 0] * Xs[:, 0] / Xs[:, 2], K[1, 1] * Xs[:, 1] / Xs[:, 2]], 1))
-    moved = np.linalg.norm(uv[1] - uv[0], axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.nan_to_num(np.minimum(0.01 * pixels / moved, 0.5), nan=0.0, posinf=0.0)
+def _epipolar_motion(r: DepthResult, view, py: np.ndarray, px: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Per pixel (py, px) of ``r`` at depth z: how many pixels its projection into ``view`` moves when the depth
+    grows by 1%; a depth change that moves it ``n`` pixels is then about ``0.01 * n / motion`` of the depth."""
+    uv0, uv1 = (project(backproject_pixels(np.stack([px, py], 1), z * f, r.view.intrinsics, r.view.cam_from_world),
+                        view.intrinsics, view.cam_from_world)[0] for f in (1.0, 1.01))
+    return np.linalg.norm(uv1 - uv0, axis=1)
 
 
 def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
@@ -253,16 +241,17 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
                images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None) -> tuple[np.ndarray, dict]:
     """One pass of ``fill_holes``."""
     d = r.depth
+    valid = d > 0
     holes = fillable_holes(d, mask, cfg.fill_max_gap)
-    rim = ~(d > 0) & ~holes & ndi.binary_dilation(d > 0, np.ones((3, 3), bool))  # the larger gaps' edge pixels
+    rim = ~valid & ~holes & ndi.binary_dilation(valid, np.ones((3, 3), bool))  # the larger gaps' edge pixels
     if mask is not None:
         rim &= mask
     holes = holes | rim
     stats = {"hole_pixels": int(holes.sum()), "filled": 0}
     if not holes.any() or need < 1:
         return np.zeros(d.shape, bool), stats
-    valid = d > 0
     py, px = np.nonzero(holes)
+    first_source = next(iter(images.values()))[1]  # the view along whose epipolar line a pixel must be distinct
     on_rim = rim[py, px]
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     n_dir = len(DIRECTIONS)
@@ -298,8 +287,10 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         kk = np.flatnonzero(ok)
         e0 = photometric_error(grey, r, images, py[kk], px[kk], z, radius=0)
         e_alt = np.full(len(kk), np.inf)
+        motion = _epipolar_motion(r, first_source, py[kk], px[kk], z)
         for shift in range(2, int(DISTINCT_PX) + 1):
-            f = _epipolar_shift(r, next(iter(images.values()))[1], py[kk], px[kk], z, shift)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                f = np.nan_to_num(np.minimum(0.01 * shift / motion, 0.5), nan=0.0, posinf=0.0)
             for s in (1 - f, 1 + f):
                 e_alt = np.minimum(e_alt, photometric_error(grey, r, images, py[kk], px[kk], z * s, radius=0))
         distinct[k, kk] = e_alt >= e0 + DISTINCT_GREY

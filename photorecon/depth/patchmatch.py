@@ -40,6 +40,7 @@ import numpy as np
 
 from ..cameras import View, invert_rigid
 from ..progress import bar
+from .config import EDGE_TOL
 
 log = logging.getLogger("photorecon")
 
@@ -425,7 +426,7 @@ def ncc_cost_reference(ref: np.ndarray, src: np.ndarray, x: int, y: int, Hm: np.
     if c[2] <= 1e-12:
         return 2.0
     cx, cy = c[0] / c[2], c[1] / c[2]
-    if not (-1e-3 <= cx <= ws - 1 + 1e-3 and -1e-3 <= cy <= hs - 1 + 1e-3):  # _pm_kernels.EDGE_TOL
+    if not (-EDGE_TOL <= cx <= ws - 1 + EDGE_TOL and -EDGE_TOL <= cy <= hs - 1 + EDGE_TOL):
         return 2.0
     rs, ss, ws_ = [], [], []
     for iy, dy in enumerate(range(-radius, radius + 1, stride)):
