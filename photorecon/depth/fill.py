@@ -16,18 +16,21 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
 3. **Evidence**: each candidate goes through the same geometric test as PatchMatch's own depths
    (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
    must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
-   neighbourhood (the best 2x2 block of its 3x3 that holds it) and the matching sources' around its
-   projection (the best source) must be at most the ``PHOTO_QUANTILE`` quantile of the same error at the
-   view's kept depths (their noise level: 0.007-0.012 on the synthetic pairs) and at most ``PHOTO_RATIO``
-   times the lowest of the pixel's candidates, confirmed or not. Next to a depth edge the other view's depth
+   neighbourhood (the best 2x2 block of its 3x3 that holds it) and the matching sources' (the best source),
+   each neighbour projected through the candidate's plane (a slanted surface the source sees foreshortened
+   still matches), must be at most the ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths
+   (their noise level: about 0.006 on the synthetic pairs, 0.04 on a real facade pair) and at most
+   ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not. Next to a depth edge the other view's depth
    map is "fattened" like the reference's, so the near side's plane can be confirmed geometrically where the
    pixel shows the far side: the images tell them apart; and the same fattening hides the far side's plane
    from the geometric test where the pixel does show it. So a candidate the depth maps do not confirm is still
-   taken on the images' word when the pixel is **distinct**: its own grey difference at the candidate's depth
-   at least ``DISTINCT_GREY`` below that at the depths that move its projection 2 to ``DISTINCT_PX`` pixels
-   either way along the epipolar line, where no source's depth map sees a surface behind the point (it would
-   hide what that view saw; ``FREE_TOL``), and its neighbourhood's error at most the ``PHOTO_ONLY_QUANTILE``
-   quantile of the kept depths'. A rim pixel must be distinct in either case (on a plain background beside
+   taken on the images' word when the pixel is **distinct**: its neighbourhood's error at the candidate's plane
+   below that at the planes moved along the ray so that its projection moves 2 to ``DISTINCT_PX`` pixels
+   either way along the epipolar line, by a margin that follows the images' noise (``DISTINCT_NOISE`` times
+   the kept depths' median error, at least ``DISTINCT_GREY``: on a noisy plain wall a depth matches better
+   than its neighbours by chance), where no source's depth map sees a surface behind the point (it would
+   hide what that view saw; ``FREE_TOL``), and its error at most the ``PHOTO_ONLY_QUANTILE`` quantile of the
+   kept depths'. A rim pixel must be distinct in either case (on a plain background beside
    an object any depth matches as well: without that test the object's plane spilled onto it).
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
    candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
@@ -35,9 +38,10 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
 
 A filled depth is supported by the other views' depth maps or by their images: a gap that the other views do
 not see (an occlusion) or see otherwise stays a gap. On synthetic rectified pairs (``tools/bench_stereo.py``)
-the fill answers about 1.7% more of the pixels both views see (knot, room), almost all next to depth edges, and
+the fill answers about 2.3% more of the pixels both views see (knot, room), almost all next to depth edges, and
 the share of answers off by more than 2 px of disparity stays as it was; on a real facade pair it answers
-1.0-1.7% more, of which about a tenth is more than 5% off a multi-view depth (docs/benchmarks.md).
+3-4% more of the pixels, 85% of them within 1% of a multi-view depth and 1-3% more than 5% off it
+(docs/benchmarks.md).
 """
 from __future__ import annotations
 
@@ -57,17 +61,18 @@ PHOTO_RATIO = 1.2  # ... and at most this factor above the lowest of the pixel's
 PHOTO_SAMPLES = 20000  # kept depths sampled for that quantile
 EDGE_ON_COS = 0.1  # a neighbour's plane seen more edge-on than this (|cos| to the pixel's ray) -> fronto-parallel
 MAX_DEPTH_RATIO = 1.5  # a plane extended to a pixel further than this factor from its own depth -> fronto-parallel
-PHOTO_ONLY_QUANTILE = 0.75  # without the other views' depth: at most this quantile of the kept depths' errors
+PHOTO_ONLY_QUANTILE = 0.9  # without the other views' depth: at most this quantile of the kept depths' errors
 FREE_TOL = 0.01  # a distinct pixel's plane must not hide, by more than this relative depth, what a source saw
-DISTINCT_PX = 4  # a candidate's depth must match the pixel better than the depths that shift it this far ...
-DISTINCT_GREY = 0.003  # ... by at least this grey difference (grey 0..1)
+DISTINCT_PX = 4  # a candidate's plane must match the pixel better than the planes that shift it 2..this far ...
+DISTINCT_GREY = 0.002  # ... by at least this grey difference (grey 0..1; half an 8-bit grey level) ...
+DISTINCT_NOISE = 0.5  # ... and this factor times the median error at the kept depths (the images' noise)
 QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
 DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
 
 
 def fill_on(cfg: MVSConfig, n_views: int) -> bool:
     """Whether a view checked against ``n_views`` other views gets the fill: ``fill_gaps`` on, or auto and one
-    view (a stereo pair: there it puts about 1.7% more pixels within 2 px of disparity on the synthetic pairs of
+    view (a stereo pair: there it puts about 2.3% more pixels within 2 px of disparity on the synthetic pairs of
     ``tools/bench_stereo.py``, the share of wrong answers unchanged)."""
     return cfg.fill_gaps == "on" or (cfg.fill_gaps == "auto" and n_views == 1)
 
@@ -154,32 +159,56 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[np.ndarray, object]],
-                      py: np.ndarray, px: np.ndarray, z: np.ndarray, radius: int = 1) -> np.ndarray:
+                      py: np.ndarray, px: np.ndarray, z: np.ndarray, radius: int = 1,
+                      normal: np.ndarray | None = None) -> np.ndarray:
     """Per pixel (py, px) at depth z of view ``r`` (grey image ``grey``): the mean absolute grey difference of its
     neighbourhood and the source images' (``images``: name -> (grey, view)) around its projection, the lowest
     over the sources (occlusion-robust); +inf where it projects into none. The neighbourhood: the best of the
     four 2x2 blocks of its 3x3 that hold the pixel (shiftable windows: next to a depth edge one of them lies on
-    the pixel's own side); ``radius`` 0: the pixel alone."""
+    the pixel's own side); ``radius`` 0: the pixel alone. ``normal`` (N, 3), camera frame: the neighbourhood lies on the plane through the
+    point with that normal (each neighbour projected at the plane's depth there, so a slanted surface that the
+    source sees foreshortened still matches); without it, or where the plane is seen edge-on, at the pixel's
+    depth."""
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
-    X = (np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T) * z[:, None]
-    world_from_ref = np.linalg.inv(r.view.cam_from_world)
-    Xw = X @ world_from_ref[:3, :3].T + world_from_ref[:3, 3]
+    z = np.asarray(z, np.float64)
     H, W = grey.shape
     offs = [(oy, ox) for oy in range(-radius, radius + 1) for ox in range(-radius, radius + 1)]
     ref = np.stack([grey[np.clip(py + oy, 0, H - 1), np.clip(px + ox, 0, W - 1)] for oy, ox in offs], 1)
+    world_from_ref = np.linalg.inv(r.view.cam_from_world)
+    ray_c = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T
+    n_x = None if normal is None else np.einsum("ij,ij->i", np.asarray(normal, np.float64), ray_c) * z
+    # the neighbourhood's projection: the pixel's, and how it moves per pixel right and down on the plane (its
+    # local affine map; exact for the 1-pixel offsets of a 3x3 up to the plane's perspective, far below a pixel)
+    points = []
+    for ox, oy in ((0, 0), (1, 0), (0, 1)):
+        ray = ray_c if ox == oy == 0 else np.stack([px + ox, py + oy, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T
+        zo = z
+        if n_x is not None and (ox or oy):
+            den = np.einsum("ij,ij->i", np.asarray(normal, np.float64), ray)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zp = n_x / den
+            ok = (np.abs(den) >= EDGE_ON_COS * np.linalg.norm(ray, axis=1)) & (zp > z / MAX_DEPTH_RATIO) & (
+                zp < z * MAX_DEPTH_RATIO)
+            zo = np.where(ok, zp, z)
+        points.append((ray * zo[:, None]) @ world_from_ref[:3, :3].T + world_from_ref[:3, 3])
     best = np.full(len(py), np.inf)
     for img, view in images.values():
         T = view.cam_from_world
-        Xs = Xw @ T[:3, :3].T + T[:3, 3]
         K = np.asarray(view.intrinsics.K, np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = (K[0, 0] * Xs[:, 0] + K[0, 1] * Xs[:, 1]) / Xs[:, 2] + K[0, 2]
-            v = K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2]
         hs, ws = img.shape
-        ok = ((Xs[:, 2] > 0) & (u >= -EDGE_TOL) & (v >= -EDGE_TOL) & (u <= ws - 1 + EDGE_TOL)
-              & (v <= hs - 1 + EDGE_TOL))
-        u0, v0 = np.nan_to_num(u), np.nan_to_num(v)
-        src = np.stack([_bilinear(img, u0 + ox, v0 + oy) for oy, ox in offs], 1)
+        uv = []
+        for Xw in points:
+            Xs = Xw @ T[:3, :3].T + T[:3, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv.append(((K[0, 0] * Xs[:, 0] + K[0, 1] * Xs[:, 1]) / Xs[:, 2] + K[0, 2],
+                           K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2], Xs[:, 2]))
+        (u, v, zs), (ux, vx, _), (uy, vy, _) = uv
+        ok = (zs > 0) & (u >= -EDGE_TOL) & (v >= -EDGE_TOL) & (u <= ws - 1 + EDGE_TOL) & (v <= hs - 1 + EDGE_TOL)
+        u, v = np.nan_to_num(u), np.nan_to_num(v)
+        dux, dvx = np.nan_to_num(ux) - u, np.nan_to_num(vx) - v
+        duy, dvy = np.nan_to_num(uy) - u, np.nan_to_num(vy) - v
+        src = [_bilinear(img, u + ox * dux + oy * duy, v + ox * dvx + oy * dvy) for oy, ox in offs]
+        src = np.stack(src, 1)
         a = np.abs(src - ref)
         if radius == 1:  # the best of the four 2x2 quadrants that hold the pixel (shiftable windows)
             e = np.min(np.stack([a[:, q].mean(1) for q in QUADRANTS], 1), axis=1)
@@ -254,6 +283,13 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     first_source = next(iter(images.values()))[1]  # the view along whose epipolar line a pixel must be distinct
     on_rim = rim[py, px]
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
+    vy, vx = np.nonzero(valid)
+    step = max(1, len(vy) // PHOTO_SAMPLES)
+    e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
+    e_kept = e_kept[np.isfinite(e_kept)]
+    margin = max(DISTINCT_GREY, DISTINCT_NOISE * float(np.median(e_kept))) if len(e_kept) else DISTINCT_GREY
+    e_max = float(np.quantile(e_kept, PHOTO_QUANTILE)) if len(e_kept) else 0.0
+    e_only = float(np.quantile(e_kept, PHOTO_ONLY_QUANTILE)) if len(e_kept) else 0.0
     n_dir = len(DIRECTIONS)
     z_c = np.zeros((n_dir, len(py)))
     cnt_c = np.zeros((n_dir, len(py)), np.int32)
@@ -282,27 +318,30 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         z_c[k, ok] = z
         cnt_c[k, ok] = cnt[py[ok], px[ok]]
         q_c[k, ok] = np.stack([qy[ok], qx[ok]], 1)
-        e_c[k, ok] = photometric_error(grey, r, images, py[ok], px[ok], z)
-        # the pixel itself, at the candidate's depth and at depths 2..DISTINCT_PX pixels along the epipolar line
-        kk = np.flatnonzero(ok)
-        e0 = photometric_error(grey, r, images, py[kk], px[kk], z, radius=0)
-        e_alt = np.full(len(kk), np.inf)
-        motion = _epipolar_motion(r, first_source, py[kk], px[kk], z)
+        e_c[k, ok] = photometric_error(grey, r, images, py[ok], px[ok], z,
+                                       normal=None if r.normal is None else r.normal[qy[ok], qx[ok]])
+        # distinct: the neighbourhood at the candidate's plane and at the planes 2..DISTINCT_PX pixels along the
+        # epipolar line; only where it can decide (a rim pixel, or one the depth maps do not confirm), and the
+        # error passes the test it would take part in
+        e_k = e_c[k]
+        kk = np.flatnonzero(ok & (e_k <= e_max) & (on_rim | ((cnt_c[k] < need) & (e_k <= e_only))))
+        nk = None if r.normal is None else r.normal[q_c[k, kk, 0], q_c[k, kk, 1]]
+        motion = _epipolar_motion(r, first_source, py[kk], px[kk], z_c[k, kk])
+        alive = np.ones(len(kk), bool)  # still distinct after the shifts so far
         for shift in range(2, int(DISTINCT_PX) + 1):
             with np.errstate(divide="ignore", invalid="ignore"):
                 f = np.nan_to_num(np.minimum(0.01 * shift / motion, 0.5), nan=0.0, posinf=0.0)
-            for s in (1 - f, 1 + f):
-                e_alt = np.minimum(e_alt, photometric_error(grey, r, images, py[kk], px[kk], z * s, radius=0))
-        distinct[k, kk] = e_alt >= e0 + DISTINCT_GREY
-        distinct[k, kk] &= _not_seen_through(r, sources, py[kk], px[kk], z, FREE_TOL)
-        e_c[k, kk[on_rim[kk] & ~distinct[k, kk]]] = np.inf
-    vy, vx = np.nonzero(valid)
-    step = max(1, len(vy) // PHOTO_SAMPLES)
-    e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
-    e_kept = e_kept[np.isfinite(e_kept)]
-    e_max = float(np.quantile(e_kept, PHOTO_QUANTILE)) if len(e_kept) else 0.0
+            for sign in (-1, 1):
+                a = np.flatnonzero(alive)
+                i = kk[a]
+                e_alt = photometric_error(grey, r, images, py[i], px[i], z_c[k, i] * (1 + sign * f[a]),
+                                          normal=None if nk is None else nk[a])
+                alive[a] = e_alt >= e_k[i] + margin
+        distinct[k, kk] = alive
+        distinct[k, kk[alive]] &= _not_seen_through(r, sources, py[kk[alive]], px[kk[alive]], z_c[k, kk[alive]],
+                                                    FREE_TOL)
+        e_c[k, on_rim & ~distinct[k]] = np.inf
     e_min = np.min(np.where(z_c > 0, e_c, np.inf), axis=0)
-    e_only = float(np.quantile(e_kept, PHOTO_ONLY_QUANTILE)) if len(e_kept) else 0.0
     seen = (cnt_c >= need) | (distinct & (e_c <= e_only))  # the other views' depth maps, or the images alone
     confirmed = seen & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
     has = confirmed.any(0)
