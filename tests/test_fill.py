@@ -312,3 +312,38 @@ def test_noisy_plain_background_beside_an_edge_does_not_take_the_edges_plane_on_
         cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
         filled, _ = fill_holes(r, src, cfg, 1, ga.astype(np.float32), {"b": (gb.astype(np.float32), src["b"].view)})
         assert filled[~near_a].sum() < 0.15 * wall_rim.sum(), (seed, filled[~near_a].sum(), wall_rim.sum())
+
+
+def test_edge_fattened_in_both_depth_maps_settles_on_the_surface_the_pixels_show():
+    # a textured strip (z = 2.4) before a textured wall (z = 3): in the top half both views' depth maps carry the
+    # strip's plane 3 px onto the wall on its right (PatchMatch's windows straddle the edge, and the geometric
+    # filter keeps what both maps agree on); the wall's pixels take the wall's plane back where their own
+    # neighbourhoods show it, and no pixel that had the right depth loses it
+    from photorecon.depth.fill import settle_edges
+
+    strip = (np.array([0.0, 0.0, 1.0]), 2.4, (-0.3, 0.3))
+    wall = (np.array([0.0, 0.0, 1.0]), 3.0, None)
+    right_of = np.zeros((1, 7), bool)
+    right_of[0, 3:] = True  # dilation towards +x by 3 px
+    maps = []
+    for cx in (0.0, B):
+        d, n, g = _render(cx, [strip, wall])
+        on_strip = d < 2.7
+        fat = ndi.binary_dilation(on_strip, right_of) & ~on_strip
+        fat[H // 2:] = False
+        df, nf = d.copy(), n.copy()
+        df[fat] = 2.4
+        nf[fat] = (0, 0, -1)
+        maps.append((d, df, nf, g, fat))
+    (dA, fA, nA, gA, fatA), (_, fB, nB, gB, _) = maps
+    r = DepthResult(fA.copy(), np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
+    src = {"b": DepthResult(fB, None, _view("b", B), ["a"], nB)}
+    right_before = np.abs(r.depth - dA) < 0.01 * dA
+    changed = settle_edges(r, src, gA, {"b": (gB, src["b"].view)})
+    right_after = np.abs(r.depth - dA) < 0.01 * dA
+    fat = fatA.copy()
+    fat[:3] = False  # away from the image border
+    assert fat.sum() > 80 and not right_before[fat].any()
+    assert right_after[fat].mean() > 0.7, right_after[fat].mean()
+    assert not (right_before & ~right_after).any()  # nothing right made wrong
+    assert changed[right_after & ~right_before].all()

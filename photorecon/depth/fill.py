@@ -2,8 +2,10 @@
 pixels, only where other views' depth maps confirm it.
 
 A pixel loses its depth in the filter when PatchMatch's plane at it is wrong: next to a depth edge its window
-straddles the edge and the nearer surface wins (the edge "fattens"), and on weak texture the cost has no clear
-minimum. In both cases a confirmed neighbour across the gap often carries the right plane. ``fill_holes``
+straddles the edge and the more textured surface wins (the edge "fattens"), and on weak texture the cost has no
+clear minimum. In both cases a confirmed neighbour across the gap often carries the right plane; and where both
+views' depth maps fattened an edge alike, the filter keeps the wrong plane, which the pixel's own neighbourhood
+contradicts. ``fill_holes``
 (the setting ``fill_gaps``):
 
 1. **Holes**: the 8-connected components of pixels without depth, inside the view's mask, not touching the
@@ -35,6 +37,11 @@ minimum. In both cases a confirmed neighbour across the gap often carries the ri
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
    candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
    confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
+5. **Edges** (``settle_edges``, after the passes): a kept pixel within ``EDGE_REACH`` pixels of a depth step
+   whose own plane the images contradict (its error above the ``PHOTO_QUANTILE`` quantile) takes the plane of
+   the surface across the step when that plane matches by the distinct margin better, is itself distinct and
+   hides nothing a source saw: the fattened edge that both views' depth maps agree on, so the geometric filter
+   kept it.
 
 A filled depth is supported by the other views' depth maps or by their images: a gap that the other views do
 not see (an occlusion) or see otherwise stays a gap. On synthetic rectified pairs (``tools/bench_stereo.py``)
@@ -67,6 +74,9 @@ DISTINCT_PX = 4  # a candidate's plane must match the pixel better than the plan
 DISTINCT_GREY = 0.002  # ... by at least this grey difference (grey 0..1; half an 8-bit grey level) ...
 DISTINCT_NOISE = 0.5  # ... and this factor times the median error at the kept depths (the images' noise)
 QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
+SETTLE_EDGES = True  # fill_holes ends with settle_edges
+EDGE_REACH = 3  # settle_edges: pixels this close to a depth step ...
+EDGE_STEP = 0.05  # ... of at least this relative depth
 DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
 
 
@@ -251,9 +261,9 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     neighbours' planes that at least ``need`` of ``sources`` confirm (``consistency_count`` with ``cfg``, the
     filter's settings) or the images alone do, and the images accept (``photometric_error`` of ``grey``, the
     view's image, against ``images``, name -> (grey image, view) of its matching sources); up to ``passes``
-    times, each from what the one before filled (a rim grows by a pixel a pass). Changes ``r.depth``,
-    ``r.normal`` and ``r.confidence`` in place; returns the filled pixels (bool) and stats (``hole_pixels``:
-    the first pass's)."""
+    times, each from what the one before filled (a rim grows by a pixel a pass); then ``settle_edges``. Changes
+    ``r.depth``, ``r.normal`` and ``r.confidence`` in place; returns the filled pixels (bool) and stats
+    (``hole_pixels``: the first pass's; ``settled``: the edge pixels given the plane across the edge)."""
     filled = np.zeros(r.depth.shape, bool)
     stats: dict = {}
     for p in range(max(1, passes)):
@@ -263,7 +273,106 @@ def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
                                    "conflicting": stats.get("conflicting", 0) + st.get("conflicting", 0)}
         if not st["filled"]:
             break
+    if SETTLE_EDGES:
+        stats["settled"] = int(settle_edges(r, sources, grey, images).sum())
     return filled, stats
+
+
+def _noise_levels(r: DepthResult, grey: np.ndarray, images: dict) -> tuple[float, float, float]:
+    """The photometric error at the view's kept depths (a sample of ``PHOTO_SAMPLES``), as the thresholds the
+    fill uses: the distinct margin, the ``PHOTO_QUANTILE`` and the ``PHOTO_ONLY_QUANTILE`` quantiles."""
+    d = r.depth
+    vy, vx = np.nonzero(d > 0)
+    step = max(1, len(vy) // PHOTO_SAMPLES)
+    e = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
+    e = e[np.isfinite(e)]
+    if not len(e):
+        return DISTINCT_GREY, 0.0, 0.0
+    return (max(DISTINCT_GREY, DISTINCT_NOISE * float(np.median(e))), float(np.quantile(e, PHOTO_QUANTILE)),
+            float(np.quantile(e, PHOTO_ONLY_QUANTILE)))
+
+
+def _distinct(r: DepthResult, view, grey: np.ndarray, images: dict, py: np.ndarray, px: np.ndarray, z: np.ndarray,
+              normal: np.ndarray | None, e0: np.ndarray, margin: float) -> np.ndarray:
+    """Per pixel (py, px) of ``r`` with a plane (depth z, ``normal``) whose photometric error is ``e0``: True where
+    the planes moved along the ray so that the projection into ``view`` moves 2 to ``DISTINCT_PX`` pixels either
+    way along the epipolar line all match worse by at least ``margin``. A pixel leaves at the first shift that
+    matches as well."""
+    motion = _epipolar_motion(r, view, py, px, z)
+    alive = np.ones(len(py), bool)  # still distinct after the shifts so far
+    for shift in range(2, int(DISTINCT_PX) + 1):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.nan_to_num(np.minimum(0.01 * shift / motion, 0.5), nan=0.0, posinf=0.0)
+        for sign in (-1, 1):
+            a = np.flatnonzero(alive)
+            e_alt = photometric_error(grey, r, images, py[a], px[a], z[a] * (1 + sign * f[a]),
+                                      normal=None if normal is None else normal[a])
+            alive[a] = e_alt >= e0[a] + margin
+    return alive
+
+
+def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarray,
+                 images: dict[str, tuple[np.ndarray, object]], reach: int = EDGE_REACH) -> np.ndarray:
+    """Next to a depth edge, give a kept pixel the plane of the surface across the edge where its own
+    neighbourhood shows that surface: PatchMatch's window straddles the edge and the more textured side wins
+    (the edge "fattens"), and both views' depth maps fatten alike, so the geometric filter keeps it. For each
+    kept pixel within ``reach`` pixels of a depth step (``EDGE_STEP``), the planes of the nearest pixels across
+    it in 8 directions are tried with the fill's photometric test (the best 2x2 block through the plane); the
+    best replaces the pixel's own plane when its error is below the own plane's by the distinct margin, within
+    the ``PHOTO_QUANTILE`` of the kept depths', and it does not hide what a source saw (``FREE_TOL``).
+    Changes ``r.depth`` and ``r.normal`` in place; returns the changed pixels (bool)."""
+    d = r.depth
+    valid = d > 0
+    changed = np.zeros(d.shape, bool)
+    if r.normal is None or not valid.any():
+        return changed
+    margin, e_max, _ = _noise_levels(r, grey, images)
+    size = 2 * reach + 1
+    hi = ndi.maximum_filter(np.where(valid, d, 0), size=size)
+    lo = ndi.minimum_filter(np.where(valid, d, np.inf), size=size)
+    near_edge = valid & ((hi > d * (1 + EDGE_STEP)) | (lo < d / (1 + EDGE_STEP)))
+    py, px = np.nonzero(near_edge)
+    if not len(py):
+        return changed
+    H, W = d.shape
+    Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
+    z0 = d[py, px].astype(np.float64)
+    e_own = photometric_error(grey, r, images, py, px, z0, normal=r.normal[py, px])
+    best_e = np.full(len(py), np.inf)
+    best_z = np.zeros(len(py))
+    best_q = np.zeros((len(py), 2), np.int64)
+    for dy, dx in DIRECTIONS:
+        qy = np.full(len(py), -1, np.int64)
+        qx = np.full(len(py), -1, np.int64)
+        for k in range(reach, 0, -1):  # the nearest pixel across the step in this direction wins
+            y, x = py + k * dy, px + k * dx
+            inside = (y >= 0) & (y < H) & (x >= 0) & (x < W)
+            yc, xc = np.clip(y, 0, H - 1), np.clip(x, 0, W - 1)
+            dq = d[yc, xc]
+            across = inside & (dq > 0) & ((dq > z0 * (1 + EDGE_STEP)) | (dq < z0 / (1 + EDGE_STEP)))
+            qy = np.where(across, yc, qy)
+            qx = np.where(across, xc, qx)
+        ok = np.flatnonzero(qy >= 0)
+        if not len(ok):
+            continue
+        z = _extend_plane(d, r.normal, Kinv, py[ok], px[ok], qy[ok], qx[ok])
+        e = photometric_error(grey, r, images, py[ok], px[ok], z, normal=r.normal[qy[ok], qx[ok]])
+        better = e < best_e[ok]
+        i = ok[better]
+        best_e[i], best_z[i] = e[better], z[better]
+        best_q[i] = np.stack([qy[ok][better], qx[ok][better]], 1)
+    swap = np.flatnonzero((e_own > e_max) & (best_e + margin <= e_own) & (best_e <= e_max))
+    if len(swap):
+        qn = r.normal[best_q[swap, 0], best_q[swap, 1]]
+        first_source = next(iter(images.values()))[1]
+        swap = swap[_distinct(r, first_source, grey, images, py[swap], px[swap], best_z[swap], qn, best_e[swap], margin)]
+    if len(swap):
+        swap = swap[_not_seen_through(r, sources, py[swap], px[swap], best_z[swap], FREE_TOL)]
+    sy, sx = py[swap], px[swap]
+    d[sy, sx] = best_z[swap]
+    r.normal[sy, sx] = r.normal[best_q[swap, 0], best_q[swap, 1]]
+    changed[sy, sx] = True
+    return changed
 
 
 def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
@@ -283,13 +392,7 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     first_source = next(iter(images.values()))[1]  # the view along whose epipolar line a pixel must be distinct
     on_rim = rim[py, px]
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
-    vy, vx = np.nonzero(valid)
-    step = max(1, len(vy) // PHOTO_SAMPLES)
-    e_kept = photometric_error(grey, r, images, vy[::step], vx[::step], d[vy[::step], vx[::step]].astype(np.float64))
-    e_kept = e_kept[np.isfinite(e_kept)]
-    margin = max(DISTINCT_GREY, DISTINCT_NOISE * float(np.median(e_kept))) if len(e_kept) else DISTINCT_GREY
-    e_max = float(np.quantile(e_kept, PHOTO_QUANTILE)) if len(e_kept) else 0.0
-    e_only = float(np.quantile(e_kept, PHOTO_ONLY_QUANTILE)) if len(e_kept) else 0.0
+    margin, e_max, e_only = _noise_levels(r, grey, images)
     n_dir = len(DIRECTIONS)
     z_c = np.zeros((n_dir, len(py)))
     cnt_c = np.zeros((n_dir, len(py)), np.int32)
@@ -326,17 +429,7 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         e_k = e_c[k]
         kk = np.flatnonzero(ok & (e_k <= e_max) & (on_rim | ((cnt_c[k] < need) & (e_k <= e_only))))
         nk = None if r.normal is None else r.normal[q_c[k, kk, 0], q_c[k, kk, 1]]
-        motion = _epipolar_motion(r, first_source, py[kk], px[kk], z_c[k, kk])
-        alive = np.ones(len(kk), bool)  # still distinct after the shifts so far
-        for shift in range(2, int(DISTINCT_PX) + 1):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                f = np.nan_to_num(np.minimum(0.01 * shift / motion, 0.5), nan=0.0, posinf=0.0)
-            for sign in (-1, 1):
-                a = np.flatnonzero(alive)
-                i = kk[a]
-                e_alt = photometric_error(grey, r, images, py[i], px[i], z_c[k, i] * (1 + sign * f[a]),
-                                          normal=None if nk is None else nk[a])
-                alive[a] = e_alt >= e_k[i] + margin
+        alive = _distinct(r, first_source, grey, images, py[kk], px[kk], z_c[k, kk], nk, e_k[kk], margin)
         distinct[k, kk] = alive
         distinct[k, kk[alive]] &= _not_seen_through(r, sources, py[kk[alive]], px[kk[alive]], z_c[k, kk[alive]],
                                                     FREE_TOL)

@@ -307,7 +307,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
     if kind == "filter":
         res = _raw_result(ctx, name, normal=True)
         before = int((res.depth > 0).sum())
-        err_sum, err_n, filled = 0.0, 0, 0
+        err_sum, err_n, filled, settled = 0.0, 0, 0, 0
         if cfg.min_consistent > 0:
             checked = dataclasses.replace(res, sources=_filter_sources(ctx, name))
             sources = {s: _raw_result(ctx, s, normal=cfg.plane_reproj_px > 0, confidence=False) for s in checked.sources}
@@ -320,9 +320,10 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
                 _, fill_stats = fill_holes(dataclasses.replace(res, sources=checked.sources), sources,
                                            _filter_config(cfg, len(sources)), min(cfg.min_consistent, len(sources)),
                                            _working_grey(ctx, name), images, _mask_at(ctx, name, res.depth.shape))
-                filled = fill_stats["filled"]
+                filled, settled = fill_stats["filled"], fill_stats.get("settled", 0)
         d = res.depth
-        info = {"before": before, "after": int((d > 0).sum()), "filled": filled, "err_sum": err_sum, "err_n": err_n,
+        info = {"before": before, "after": int((d > 0).sum()), "filled": filled, "settled": settled, "err_sum": err_sum,
+                "err_n": err_n,
                 "seconds": time.perf_counter() - t0}
         if not np.count_nonzero(d):
             return {**info, "written": False}
@@ -529,6 +530,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         after = sum(r["after"] for r in filtered.values())
         consistency["kept_fraction"] = after / before if before else 0.0
         consistency["filled_fraction"] = sum(r.get("filled", 0) for r in filtered.values()) / after if after else 0.0
+        consistency["settled_fraction"] = sum(r.get("settled", 0) for r in filtered.values()) / after if after else 0.0
     stats = {}
     for v in model.views:
         r = filtered.get(v.name)
