@@ -2,6 +2,8 @@
 a procedural texture; the reference depth map gets holes, the other view's depth map is the truth."""
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 from scipy import ndimage as ndi
 
@@ -230,7 +232,8 @@ def test_photometric_error_next_to_a_depth_edge_is_the_noise_of_the_pixels_own_s
 
 def test_hole_the_other_depth_map_misses_is_filled_only_where_the_images_are_clear():
     # the other view has no depth at all (no geometric confirmation anywhere): a hole on the textured slanted plane
-    # is filled on the images' word alone, the same hole on a plain grey patch is not
+    # is filled on the images' word alone; the same hole on a plain grey patch is not, when it is not enclosed by
+    # one surface (here: the enclosed-hole rule switched off; below, the hole inside one surface)
     hole = _box(30, 40, 40, 52)
     for flat, want in ((None, True), ((-0.6, 0.6, -0.6, 0.6), False)):
         dA, nA, gA = _render(0.0, [TILTED], flat)
@@ -241,12 +244,51 @@ def test_hole_the_other_depth_map_misses_is_filled_only_where_the_images_are_cle
         r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
         src = {"b": DepthResult(np.zeros((H, W), np.float32), None, _view("b", B), ["a"], nB)}
         cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
-        filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
+        with _enclosed_fill(False):
+            filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
         if want:
             assert filled[hole].mean() > 0.6, filled[hole].mean()
             err = np.abs(r.depth[filled] - truth[filled]) / truth[filled]
             assert err.max() < 0.005, err.max()
         else:
+            assert filled[hole].mean() < 0.05, filled[hole].mean()
+
+
+@contextlib.contextmanager
+def _enclosed_fill(on: bool):
+    """``fill.ENCLOSED_FILL`` set to ``on`` for the block."""
+    from photorecon.depth import fill
+
+    was = fill.ENCLOSED_FILL
+    fill.ENCLOSED_FILL = on
+    try:
+        yield
+    finally:
+        fill.ENCLOSED_FILL = was
+
+
+def test_plain_hole_inside_one_surface_takes_its_plane_and_one_across_a_step_stays_empty():
+    # the other view has no depth and the hole lies on a plain grey patch, so neither the depth maps nor the images
+    # can confirm anything: a hole whose neighbours in all 8 directions carry one plane takes it (to the truth); a
+    # hole across a depth step (neighbours on two planes, 20% apart) stays empty
+    flat = (-0.6, 0.6, -0.6, 0.6)
+    near = (np.array([0.0, 0.0, 1.0]), 2.0, (-10.0, 0.0))  # world x < 0 at z = 2, the rest at z = 2.4
+    far = (np.array([0.0, 0.0, 1.0]), 2.4, None)
+    for planes, hole, want in (([TILTED], _box(30, 40, 40, 52), True), ([near, far], _box(30, 40, 42, 54), False)):
+        dA, nA, gA = _render(0.0, planes, flat)
+        _, nB, gB = _render(B, planes, flat)
+        depth = dA.copy()
+        depth[hole] = 0
+        r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
+        src = {"b": DepthResult(np.zeros((H, W), np.float32), None, _view("b", B), ["a"], nB)}
+        cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
+        filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
+        if want:
+            assert filled[hole].mean() > 0.95, filled[hole].mean()
+            err = np.abs(r.depth[filled] - dA[filled]) / dA[filled]
+            assert err.max() < 0.005, err.max()
+        else:
+            assert (dA[hole] < 2.2).any() and (dA[hole] > 2.2).any()  # the step crosses the hole
             assert filled[hole].mean() < 0.05, filled[hole].mean()
 
 

@@ -5,7 +5,7 @@ transforms.json``: no sparse points given, they are triangulated), against the t
 pairs against OpenCV's StereoSGBM.
 
     python tools/bench_stereo.py [--scenes knot,room,blob] [--width 640 --height 480] [--baseline 0.3]
-                                 [--rigs stereo,pair] [--json out.json] [--keep DIR] [--set NAME=VALUE]
+                                 [--rigs stereo,pair] [--contrast 1.0] [--json out.json] [--keep DIR] [--set NAME=VALUE]
 
 Per pair and view, on the pixels both views see (from the true depth maps):
 - ``within1%``: the fraction whose depth is within 1% of the truth (no depth = wrong), ``coverage`` the fraction
@@ -54,6 +54,10 @@ def run_pair(scene: str, rig: str, args, tmp: Path) -> dict:
     data = tmp / f"{scene}_{rig}"
     synthesize(SynthConfig(scene=scene, rig=rig, width=args.width, height=args.height, radius=args.radius,
                            elevation=args.elevation, baseline=args.baseline, fov=args.fov), data, overwrite=True)
+    if args.contrast != 1.0:  # weak texture: both images' contrast scaled about mid-grey, kept in 8 bits
+        for f in sorted((data / "images").iterdir()):
+            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED).astype(np.float32)
+            cv2.imwrite(str(f), np.clip(np.round(127.5 + (img - 127.5) * args.contrast), 0, 255).astype(np.uint8))
     out = tmp / f"{scene}_{rig}_rec"
     cfgs = StageConfigs()
     cfgs.mvs = dataclasses.replace(cfgs.mvs, **args.mvs_over)
@@ -107,6 +111,8 @@ def main() -> None:
     ap.add_argument("--radius", type=float, default=2.6, help="camera distance from the scene centre")
     ap.add_argument("--elevation", type=float, default=35.0, help="degrees")
     ap.add_argument("--fov", type=float, default=50.0, help="horizontal field of view, degrees")
+    ap.add_argument("--contrast", type=float, default=1.0,
+                    help="scale both images' contrast about mid-grey by this factor (e.g. 0.1: weak texture)")
     ap.add_argument("--json")
     ap.add_argument("--keep", help="keep the datasets and reconstructions in this folder")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",

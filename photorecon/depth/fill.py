@@ -33,7 +33,10 @@ contradicts. ``fill_holes``
    than its neighbours by chance), where no source's depth map sees a surface behind the point (it would
    hide what that view saw; ``FREE_TOL``), and its error at most the ``PHOTO_ONLY_QUANTILE`` quantile of the
    kept depths'. A rim pixel must be distinct in either case (on a plain background beside
-   an object any depth matches as well: without that test the object's plane spilled onto it).
+   an object any depth matches as well: without that test the object's plane spilled onto it). And a pixel of
+   a small hole (not a rim) whose neighbours in all 8 directions carry planes that agree within ``rel_depth``
+   is **enclosed** by one surface: where neither the depth maps nor the images can tell (weak texture: both
+   views' PatchMatch depths wander, any nearby depth matches), that surface is the evidence.
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
    candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
    confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
@@ -47,8 +50,8 @@ A filled depth is supported by the other views' depth maps or by their images: a
 not see (an occlusion) or see otherwise stays a gap. On synthetic rectified pairs (``tools/bench_stereo.py``)
 the fill puts about 2.4% more of the pixels both views see within 2 px of disparity (knot, room), almost all
 next to depth edges, with fewer answers off by more than 2 px (the room: 262 against 621); on a real facade pair
-it answers 3-4% more of the pixels, 85% of them within 1% of a multi-view depth and 1-3% more than 5% off it
-(docs/benchmarks.md).
+it answers 4-6% more of the pixels, 86-87% of them within 1% of a multi-view depth and 1-2% more than 5% off
+it (docs/benchmarks.md).
 """
 from __future__ import annotations
 
@@ -74,6 +77,7 @@ DISTINCT_PX = 4  # a candidate's plane must match the pixel better than the plan
 DISTINCT_GREY = 0.002  # ... by at least this grey difference (grey 0..1; half an 8-bit grey level) ...
 DISTINCT_NOISE = 0.5  # ... and this factor times the median error at the kept depths (the images' noise)
 QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
+ENCLOSED_FILL = True  # a small hole's pixel enclosed by one plane in all 8 directions takes it (step 3)
 SETTLE_EDGES = True  # fill_holes ends with settle_edges
 EDGE_REACH = 3  # settle_edges: pixels this close to a depth step ...
 EDGE_STEP = 0.05  # ... of at least this relative depth
@@ -435,7 +439,12 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
                                                     FREE_TOL)
         e_c[k, on_rim & ~distinct[k]] = np.inf
     e_min = np.min(np.where(z_c > 0, e_c, np.inf), axis=0)
-    seen = (cnt_c >= need) | (distinct & (e_c <= e_only))  # the other views' depth maps, or the images alone
+    # a hole pixel whose neighbours in all 8 directions carry planes that agree lies inside one surface
+    z_lo = np.min(np.where(z_c > 0, z_c, np.inf), axis=0)
+    enclosed = (ENCLOSED_FILL & ~on_rim & (z_c > 0).all(0)
+                & (np.max(z_c, axis=0) - z_lo <= cfg.rel_depth * z_lo))
+    # the other views' depth maps, or the images alone, or the surface all around
+    seen = (cnt_c >= need) | (distinct & (e_c <= e_only)) | enclosed[None, :]
     confirmed = seen & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
     has = confirmed.any(0)
     lo = np.min(np.where(confirmed, z_c, np.inf), axis=0)
