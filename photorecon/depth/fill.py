@@ -16,27 +16,27 @@ contradicts. ``fill_holes``
    in each of 8 directions, extended to the pixel (fronto-parallel where the plane is seen edge-on); only
    neighbours whose straight path to the pixel runs through the hole.
 3. **Evidence**: each candidate goes through the same geometric test as PatchMatch's own depths
-   (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views
-   must confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
-   neighbourhood (the best 2x2 block of its 3x3 that holds it) and the matching sources' (the best source),
-   each neighbour projected through the candidate's plane (a slanted surface the source sees foreshortened
-   still matches), must be at most the ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths
-   (their noise level: about 0.006 on the synthetic pairs, 0.04 on a real facade pair) and at most
-   ``PHOTO_RATIO`` times the lowest of the pixel's candidates, confirmed or not. Next to a depth edge the other view's depth
-   map is "fattened" like the reference's, so the near side's plane can be confirmed geometrically where the
-   pixel shows the far side: the images tell them apart; and the same fattening hides the far side's plane
-   from the geometric test where the pixel does show it. So a candidate the depth maps do not confirm is still
-   taken on the images' word when the pixel is **distinct**: its neighbourhood's error at the candidate's plane
-   below that at the planes moved along the ray so that its projection moves 2 to ``DISTINCT_PX`` pixels
-   either way along the epipolar line, by a margin that follows the images' noise (``DISTINCT_NOISE`` times
-   the kept depths' median error, at least ``DISTINCT_GREY``: on a noisy plain wall a depth matches better
-   than its neighbours by chance), where no source's depth map sees a surface behind the point (it would
-   hide what that view saw; ``FREE_TOL``), and its error at most the ``PHOTO_ONLY_QUANTILE`` quantile of the
-   kept depths'. A rim pixel must be distinct in either case (on a plain background beside
-   an object any depth matches as well: without that test the object's plane spilled onto it). And a pixel of
-   a small hole (not a rim) whose neighbours in all 8 directions carry planes that agree within ``rel_depth``
-   is **enclosed** by one surface: where neither the depth maps nor the images can tell (weak texture: both
-   views' PatchMatch depths wander, any nearby depth matches), that surface is the evidence.
+   (``filter.consistency_count``, against the same views, with the same tolerances): at least as many views must
+   confirm it as the filter requires. Then the images: the mean absolute grey difference of the pixel's
+   neighbourhood (the best 2x2 block of its 3x3 that holds it) and the matching sources' (the best source), each
+   neighbour projected through the candidate's plane (a slanted surface the source sees foreshortened still
+   matches), must be at most the ``PHOTO_QUANTILE`` quantile of the same error at the view's kept depths (their
+   noise level: about 0.006 on the synthetic pairs, 0.04 on a real facade pair) and at most ``PHOTO_RATIO`` times
+   the lowest of the pixel's candidates, confirmed or not. Next to a depth edge the other view's depth map is
+   "fattened" like the reference's, so the near side's plane can be confirmed geometrically where the pixel shows
+   the far side: the images tell them apart; and the same fattening hides the far side's plane from the geometric
+   test where the pixel does show it. So a candidate the depth maps do not confirm is still taken on the images'
+   word when the pixel is **distinct**: its neighbourhood's error at the candidate's plane below that at the
+   planes moved along the ray so that its projection moves 2 to ``DISTINCT_PX`` pixels either way along the
+   epipolar line, by a margin that follows the images' noise (``DISTINCT_NOISE`` times the kept depths' median
+   error, at least ``DISTINCT_GREY``: on a noisy plain wall a depth matches better than its neighbours by chance),
+   where no source's depth map sees a surface behind the point (it would hide what that view saw; ``FREE_TOL``),
+   and its error at most the ``PHOTO_ONLY_QUANTILE`` quantile of the kept depths'. A rim pixel must be distinct in
+   either case (on a plain background beside an object any depth matches as well: without that test the object's
+   plane spilled onto it). And a pixel of a small hole (not a rim) whose neighbours in all 8 directions carry
+   planes that agree within ``rel_depth`` is **enclosed** by one surface: where neither the depth maps nor the
+   images can tell (weak texture: both views' PatchMatch depths wander, any nearby depth matches), that surface is
+   the evidence.
 4. **Decision**: a pixel takes the passing candidate with the lowest photometric error when all the passing
    candidates agree within ``rel_depth`` (two surfaces at one pixel: no depth); its normal with it, its
    confidence 1 - 1/k for k confirming views, at least ``FILL_CONFIDENCE``.
@@ -179,10 +179,10 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
     neighbourhood and the source images' (``images``: name -> (grey, view)) around its projection, the lowest
     over the sources (occlusion-robust); +inf where it projects into none. The neighbourhood: the best of the
     four 2x2 blocks of its 3x3 that hold the pixel (shiftable windows: next to a depth edge one of them lies on
-    the pixel's own side); ``radius`` 0: the pixel alone. ``normal`` (N, 3), camera frame: the neighbourhood lies on the plane through the
-    point with that normal (each neighbour projected at the plane's depth there, so a slanted surface that the
-    source sees foreshortened still matches); without it, or where the plane is seen edge-on, at the pixel's
-    depth."""
+    the pixel's own side); ``radius`` 0: the pixel alone. ``normal`` (N, 3), camera frame: the neighbourhood
+    lies on the plane through the point with that normal (each neighbour projected at the plane's depth there,
+    so a slanted surface that the source sees foreshortened still matches); without it, or where the plane is
+    seen edge-on, at the pixel's depth."""
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     z = np.asarray(z, np.float64)
     H, W = grey.shape
@@ -321,10 +321,13 @@ def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarr
     neighbourhood shows that surface: PatchMatch's window straddles the edge and the more textured side wins
     (the edge "fattens"), and both views' depth maps fatten alike, so the geometric filter keeps it. For each
     kept pixel within ``reach`` pixels of a depth step (``EDGE_STEP``), the planes of the nearest pixels across
-    it in 8 directions are tried with the fill's photometric test (the best 2x2 block through the plane); the
-    best replaces the pixel's own plane when its error is below the own plane's by the distinct margin, within
-    the ``PHOTO_QUANTILE`` of the kept depths', and it does not hide what a source saw (``FREE_TOL``).
-    Changes ``r.depth`` and ``r.normal`` in place; returns the changed pixels (bool)."""
+    it in 8 directions are tried with the fill's photometric test (the best 2x2 block through the plane). The
+    best replaces the pixel's own plane when the images contradict the own plane (its error above the
+    ``PHOTO_QUANTILE`` quantile of the kept depths'), the new one's error is below the own plane's by the
+    distinct margin and within that quantile, it is distinct itself (``_distinct``) and it does not hide what a
+    source saw (``FREE_TOL``). Without the first and the fourth conditions the swaps on a real facade pair
+    moved away from a multi-view depth. Changes ``r.depth`` and ``r.normal`` in place; returns the changed
+    pixels (bool)."""
     d = r.depth
     valid = d > 0
     changed = np.zeros(d.shape, bool)
@@ -369,7 +372,8 @@ def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarr
     if len(swap):
         qn = r.normal[best_q[swap, 0], best_q[swap, 1]]
         first_source = next(iter(images.values()))[1]
-        swap = swap[_distinct(r, first_source, grey, images, py[swap], px[swap], best_z[swap], qn, best_e[swap], margin)]
+        swap = swap[_distinct(r, first_source, grey, images, py[swap], px[swap], best_z[swap], qn, best_e[swap],
+                              margin)]
     if len(swap):
         swap = swap[_not_seen_through(r, sources, py[swap], px[swap], best_z[swap], FREE_TOL)]
     sy, sx = py[swap], px[swap]
