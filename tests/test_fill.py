@@ -2,8 +2,6 @@
 a procedural texture; the reference depth map gets holes, the other view's depth map is the truth."""
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
 from scipy import ndimage as ndi
 
@@ -236,16 +234,7 @@ def test_hole_the_other_depth_map_misses_is_filled_only_where_the_images_are_cle
     # one surface (here: the enclosed-hole rule switched off; below, the hole inside one surface)
     hole = _box(30, 40, 40, 52)
     for flat, want in ((None, True), ((-0.6, 0.6, -0.6, 0.6), False)):
-        dA, nA, gA = _render(0.0, [TILTED], flat)
-        _, nB, gB = _render(B, [TILTED], flat)
-        truth = dA.copy()
-        depth = dA.copy()
-        depth[hole] = 0
-        r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
-        src = {"b": DepthResult(np.zeros((H, W), np.float32), None, _view("b", B), ["a"], nB)}
-        cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
-        with _enclosed_fill(False):
-            filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
+        r, truth, filled = _fill_without_other_depth([TILTED], hole, flat, enclosed=False)
         if want:
             assert filled[hole].mean() > 0.6, filled[hole].mean()
             err = np.abs(r.depth[filled] - truth[filled]) / truth[filled]
@@ -254,17 +243,18 @@ def test_hole_the_other_depth_map_misses_is_filled_only_where_the_images_are_cle
             assert filled[hole].mean() < 0.05, filled[hole].mean()
 
 
-@contextlib.contextmanager
-def _enclosed_fill(on: bool):
-    """``fill.ENCLOSED_FILL`` set to ``on`` for the block."""
-    from photorecon.depth import fill
-
-    was = fill.ENCLOSED_FILL
-    fill.ENCLOSED_FILL = on
-    try:
-        yield
-    finally:
-        fill.ENCLOSED_FILL = was
+def _fill_without_other_depth(planes, hole: np.ndarray, flat, enclosed: bool = True):
+    """``fill_holes`` on the left view of ``planes`` with ``hole`` cut out, the other view without any depth (only
+    the images or the surrounding surface can confirm): (result, the true depth, the filled pixels)."""
+    dA, nA, gA = _render(0.0, planes, flat)
+    _, nB, gB = _render(B, planes, flat)
+    depth = dA.copy()
+    depth[hole] = 0
+    r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
+    src = {"b": DepthResult(np.zeros((H, W), np.float32), None, _view("b", B), ["a"], nB)}
+    cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
+    filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)}, enclosed=enclosed)
+    return r, dA, filled
 
 
 def test_plain_hole_inside_one_surface_takes_its_plane_and_one_across_a_step_stays_empty():
@@ -275,14 +265,7 @@ def test_plain_hole_inside_one_surface_takes_its_plane_and_one_across_a_step_sta
     near = (np.array([0.0, 0.0, 1.0]), 2.0, (-10.0, 0.0))  # world x < 0 at z = 2, the rest at z = 2.4
     far = (np.array([0.0, 0.0, 1.0]), 2.4, None)
     for planes, hole, want in (([TILTED], _box(30, 40, 40, 52), True), ([near, far], _box(30, 40, 42, 54), False)):
-        dA, nA, gA = _render(0.0, planes, flat)
-        _, nB, gB = _render(B, planes, flat)
-        depth = dA.copy()
-        depth[hole] = 0
-        r = DepthResult(depth, np.ones((H, W), np.float32), _view("a", 0.0), ["b"], nA.copy())
-        src = {"b": DepthResult(np.zeros((H, W), np.float32), None, _view("b", B), ["a"], nB)}
-        cfg = MVSConfig(fill_max_gap=400, reproj_px=1.0, plane_reproj_px=0.0)
-        filled, _ = fill_holes(r, src, cfg, 1, gA, {"b": (gB, src["b"].view)})
+        r, dA, filled = _fill_without_other_depth(planes, hole, flat)
         if want:
             assert filled[hole].mean() > 0.95, filled[hole].mean()
             err = np.abs(r.depth[filled] - dA[filled]) / dA[filled]

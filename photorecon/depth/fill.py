@@ -77,8 +77,6 @@ DISTINCT_PX = 4  # a candidate's plane must match the pixel better than the plan
 DISTINCT_GREY = 0.002  # ... by at least this grey difference (grey 0..1; half an 8-bit grey level) ...
 DISTINCT_NOISE = 0.5  # ... and this factor times the median error at the kept depths (the images' noise)
 QUADRANTS = ([0, 1, 3, 4], [1, 2, 4, 5], [3, 4, 6, 7], [4, 5, 7, 8])  # the 2x2 blocks of a 3x3 that hold its centre
-ENCLOSED_FILL = True  # a small hole's pixel enclosed by one plane in all 8 directions takes it (step 3)
-SETTLE_EDGES = True  # fill_holes ends with settle_edges
 EDGE_REACH = 3  # settle_edges: pixels this close to a depth step ...
 EDGE_STEP = 0.05  # ... of at least this relative depth
 DIRECTIONS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1))  # (dy, dx)
@@ -183,46 +181,38 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
     lies on the plane through the point with that normal (each neighbour projected at the plane's depth there,
     so a slanted surface that the source sees foreshortened still matches); without it, or where the plane is
     seen edge-on, at the pixel's depth."""
-    Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     z = np.asarray(z, np.float64)
+    normal = None if normal is None else np.asarray(normal, np.float64)
     H, W = grey.shape
     offs = [(oy, ox) for oy in range(-radius, radius + 1) for ox in range(-radius, radius + 1)]
     ref = np.stack([grey[np.clip(py + oy, 0, H - 1), np.clip(px + ox, 0, W - 1)] for oy, ox in offs], 1)
-    world_from_ref = np.linalg.inv(r.view.cam_from_world)
-    ray_c = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T
-    n_x = None if normal is None else np.einsum("ij,ij->i", np.asarray(normal, np.float64), ray_c) * z
+    intr, T_ref = r.view.intrinsics, r.view.cam_from_world
+    n_x = None if normal is None else np.einsum("ij,ij->i", normal, intr.pixel_rays(np.stack([px, py], 1))) * z
     # the neighbourhood's projection: the pixel's, and how it moves per pixel right and down on the plane (its
     # local affine map; exact for the 1-pixel offsets of a 3x3 up to the plane's perspective, far below a pixel)
     points = []
     for ox, oy in ((0, 0), (1, 0), (0, 1)):
-        ray = ray_c if ox == oy == 0 else np.stack([px + ox, py + oy, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T
+        uv = np.stack([px + ox, py + oy], 1)
         zo = z
-        if n_x is not None and (ox or oy):
-            den = np.einsum("ij,ij->i", np.asarray(normal, np.float64), ray)
+        if n_x is not None and (ox or oy):  # the plane's depth at the neighbour, unless it is seen edge-on
+            ray = intr.pixel_rays(uv)
+            den = np.einsum("ij,ij->i", normal, ray)
             with np.errstate(divide="ignore", invalid="ignore"):
                 zp = n_x / den
             ok = (np.abs(den) >= EDGE_ON_COS * np.linalg.norm(ray, axis=1)) & (zp > z / MAX_DEPTH_RATIO) & (
                 zp < z * MAX_DEPTH_RATIO)
             zo = np.where(ok, zp, z)
-        points.append((ray * zo[:, None]) @ world_from_ref[:3, :3].T + world_from_ref[:3, 3])
+        points.append(backproject_pixels(uv, zo, intr, T_ref))
     best = np.full(len(py), np.inf)
     for img, view in images.values():
-        T = view.cam_from_world
-        K = np.asarray(view.intrinsics.K, np.float64)
         hs, ws = img.shape
-        uv = []
-        for Xw in points:
-            Xs = Xw @ T[:3, :3].T + T[:3, 3]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                uv.append(((K[0, 0] * Xs[:, 0] + K[0, 1] * Xs[:, 1]) / Xs[:, 2] + K[0, 2],
-                           K[1, 1] * Xs[:, 1] / Xs[:, 2] + K[1, 2], Xs[:, 2]))
-        (u, v, zs), (ux, vx, _), (uy, vy, _) = uv
-        ok = (zs > 0) & (u >= -EDGE_TOL) & (v >= -EDGE_TOL) & (u <= ws - 1 + EDGE_TOL) & (v <= hs - 1 + EDGE_TOL)
-        u, v = np.nan_to_num(u), np.nan_to_num(v)
-        dux, dvx = np.nan_to_num(ux) - u, np.nan_to_num(vx) - v
-        duy, dvy = np.nan_to_num(uy) - u, np.nan_to_num(vy) - v
-        src = [_bilinear(img, u + ox * dux + oy * duy, v + ox * dvx + oy * dvy) for oy, ox in offs]
-        src = np.stack(src, 1)
+        (c, zs), (cx, _), (cy, _) = (project(X, view.intrinsics, view.cam_from_world) for X in points)
+        u, v = c[:, 0], c[:, 1]
+        with np.errstate(invalid="ignore"):
+            ok = (zs > 0) & (u >= -EDGE_TOL) & (v >= -EDGE_TOL) & (u <= ws - 1 + EDGE_TOL) & (v <= hs - 1 + EDGE_TOL)
+        c, cx, cy = np.nan_to_num(c), np.nan_to_num(cx), np.nan_to_num(cy)
+        step_x, step_y = cx - c, cy - c  # per pixel right, per pixel down
+        src = np.stack([_bilinear(img, *(c + ox * step_x + oy * step_y).T) for oy, ox in offs], 1)
         a = np.abs(src - ref)
         if radius == 1:  # the best of the four 2x2 quadrants that hold the pixel (shiftable windows)
             e = np.min(np.stack([a[:, q].mean(1) for q in QUADRANTS], 1), axis=1)
@@ -260,25 +250,25 @@ def _epipolar_motion(r: DepthResult, view, py: np.ndarray, px: np.ndarray, z: np
 
 def fill_holes(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
                images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None = None,
-               passes: int = FILL_PASSES) -> tuple[np.ndarray, dict]:
+               passes: int = FILL_PASSES, enclosed: bool = True) -> tuple[np.ndarray, dict]:
     """Fill the small holes of ``r`` (its depth after the geometric filter; its normals PatchMatch's) with
     neighbours' planes that at least ``need`` of ``sources`` confirm (``consistency_count`` with ``cfg``, the
     filter's settings) or the images alone do, and the images accept (``photometric_error`` of ``grey``, the
     view's image, against ``images``, name -> (grey image, view) of its matching sources); up to ``passes``
     times, each from what the one before filled (a rim grows by a pixel a pass); then ``settle_edges``. Changes
     ``r.depth``, ``r.normal`` and ``r.confidence`` in place; returns the filled pixels (bool) and stats
-    (``hole_pixels``: the first pass's; ``settled``: the edge pixels given the plane across the edge)."""
+    (``hole_pixels``: the first pass's; ``settled``: the edge pixels given the plane across the edge).
+    ``enclosed``: a small hole's pixel enclosed by one plane in all 8 directions takes it (step 3)."""
     filled = np.zeros(r.depth.shape, bool)
     stats: dict = {}
     for p in range(max(1, passes)):
-        got, st = _fill_pass(r, sources, cfg, need, grey, images, mask)
+        got, st = _fill_pass(r, sources, cfg, need, grey, images, mask, enclosed)
         filled |= got
         stats = st if p == 0 else {**stats, "filled": stats["filled"] + st["filled"],
                                    "conflicting": stats.get("conflicting", 0) + st.get("conflicting", 0)}
         if not st["filled"]:
             break
-    if SETTLE_EDGES:
-        stats["settled"] = int(settle_edges(r, sources, grey, images).sum())
+    stats["settled"] = int(settle_edges(r, sources, grey, images).sum())
     return filled, stats
 
 
@@ -296,13 +286,13 @@ def _noise_levels(r: DepthResult, grey: np.ndarray, images: dict) -> tuple[float
             float(np.quantile(e, PHOTO_ONLY_QUANTILE)))
 
 
-def _distinct(r: DepthResult, view, grey: np.ndarray, images: dict, py: np.ndarray, px: np.ndarray, z: np.ndarray,
+def _distinct(r: DepthResult, grey: np.ndarray, images: dict, py: np.ndarray, px: np.ndarray, z: np.ndarray,
               normal: np.ndarray | None, e0: np.ndarray, margin: float) -> np.ndarray:
     """Per pixel (py, px) of ``r`` with a plane (depth z, ``normal``) whose photometric error is ``e0``: True where
-    the planes moved along the ray so that the projection into ``view`` moves 2 to ``DISTINCT_PX`` pixels either
-    way along the epipolar line all match worse by at least ``margin``. A pixel leaves at the first shift that
-    matches as well."""
-    motion = _epipolar_motion(r, view, py, px, z)
+    the planes moved along the ray so that the projection into the first of ``images`` moves 2 to ``DISTINCT_PX``
+    pixels either way along the epipolar line all match worse by at least ``margin``. A pixel leaves at the first
+    shift that matches as well."""
+    motion = _epipolar_motion(r, next(iter(images.values()))[1], py, px, z)
     alive = np.ones(len(py), bool)  # still distinct after the shifts so far
     for shift in range(2, int(DISTINCT_PX) + 1):
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -371,9 +361,7 @@ def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarr
     swap = np.flatnonzero((e_own > e_max) & (best_e + margin <= e_own) & (best_e <= e_max))
     if len(swap):
         qn = r.normal[best_q[swap, 0], best_q[swap, 1]]
-        first_source = next(iter(images.values()))[1]
-        swap = swap[_distinct(r, first_source, grey, images, py[swap], px[swap], best_z[swap], qn, best_e[swap],
-                              margin)]
+        swap = swap[_distinct(r, grey, images, py[swap], px[swap], best_z[swap], qn, best_e[swap], margin)]
     if len(swap):
         swap = swap[_not_seen_through(r, sources, py[swap], px[swap], best_z[swap], FREE_TOL)]
     sy, sx = py[swap], px[swap]
@@ -384,7 +372,8 @@ def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarr
 
 
 def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, need: int, grey: np.ndarray,
-               images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None) -> tuple[np.ndarray, dict]:
+               images: dict[str, tuple[np.ndarray, object]], mask: np.ndarray | None,
+               enclosed: bool) -> tuple[np.ndarray, dict]:
     """One pass of ``fill_holes``."""
     d = r.depth
     valid = d > 0
@@ -397,7 +386,6 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     if not holes.any() or need < 1:
         return np.zeros(d.shape, bool), stats
     py, px = np.nonzero(holes)
-    first_source = next(iter(images.values()))[1]  # the view along whose epipolar line a pixel must be distinct
     on_rim = rim[py, px]
     Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     margin, e_max, e_only = _noise_levels(r, grey, images)
@@ -437,7 +425,7 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         e_k = e_c[k]
         kk = np.flatnonzero(ok & (e_k <= e_max) & (on_rim | ((cnt_c[k] < need) & (e_k <= e_only))))
         nk = None if r.normal is None else r.normal[q_c[k, kk, 0], q_c[k, kk, 1]]
-        alive = _distinct(r, first_source, grey, images, py[kk], px[kk], z_c[k, kk], nk, e_k[kk], margin)
+        alive = _distinct(r, grey, images, py[kk], px[kk], z_c[k, kk], nk, e_k[kk], margin)
         distinct[k, kk] = alive
         distinct[k, kk[alive]] &= _not_seen_through(r, sources, py[kk[alive]], px[kk[alive]], z_c[k, kk[alive]],
                                                     FREE_TOL)
@@ -445,10 +433,9 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
     e_min = np.min(np.where(z_c > 0, e_c, np.inf), axis=0)
     # a hole pixel whose neighbours in all 8 directions carry planes that agree lies inside one surface
     z_lo = np.min(np.where(z_c > 0, z_c, np.inf), axis=0)
-    enclosed = (ENCLOSED_FILL & ~on_rim & (z_c > 0).all(0)
-                & (np.max(z_c, axis=0) - z_lo <= cfg.rel_depth * z_lo))
+    inside = enclosed & ~on_rim & (z_c > 0).all(0) & (np.max(z_c, axis=0) - z_lo <= cfg.rel_depth * z_lo)
     # the other views' depth maps, or the images alone, or the surface all around
-    seen = (cnt_c >= need) | (distinct & (e_c <= e_only)) | enclosed[None, :]
+    seen = (cnt_c >= need) | (distinct & (e_c <= e_only)) | inside[None, :]
     confirmed = seen & (z_c > 0) & (e_c <= e_max) & (e_c <= e_min * PHOTO_RATIO + 1e-6)
     has = confirmed.any(0)
     lo = np.min(np.where(confirmed, z_c, np.inf), axis=0)
