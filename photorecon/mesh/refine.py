@@ -70,14 +70,13 @@ class RefineConfig:
 
 # --- the numba kernels ------------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def _sample(img, P, x, y, z, w, h):
-    """Bilinear grey value at the projection of (x, y, z) by the 3x4 ``P`` (pixel (0, 0) at the centre of the
+def _bilinear(img, hx, hy, hz, w, h):
+    """Bilinear grey value at the homogeneous image point (hx, hy, hz) (pixel (0, 0) at the centre of the
     top-left pixel), NaN outside the image or behind the camera."""
-    zc = P[2, 0] * x + P[2, 1] * y + P[2, 2] * z + P[2, 3]
-    if zc <= 0:
+    if hz <= 0:
         return np.nan
-    u = (P[0, 0] * x + P[0, 1] * y + P[0, 2] * z + P[0, 3]) / zc
-    v = (P[1, 0] * x + P[1, 1] * y + P[1, 2] * z + P[1, 3]) / zc
+    u = hx / hz
+    v = hy / hz
     if not (u >= 0.0 and v >= 0.0 and u <= w - 1.0 and v <= h - 1.0):
         return np.nan
     u0 = min(int(u), w - 2)
@@ -89,15 +88,36 @@ def _sample(img, P, x, y, z, w, h):
 
 
 @njit(cache=True, inline="always")
-def _patch(img, P, pts, w, h, out):
-    """``_sample`` at each of ``pts`` (S, 3) into ``out`` (S,); returns their mean, NaN when one is outside."""
+def _patch_h(img, Pv, base, d, half, w, h, out):
+    """The patch's samples in one view into ``out`` (S,); returns their mean, NaN when one is outside. ``Pv``
+    (4, 3): the view's projection of the vertex, its normal and its two tangent steps (homogeneous image
+    coordinates, linear in the point), so that sample (a, b) at offset ``d`` projects to
+    ``Pv[0] + d Pv[1] + a Pv[2] + b Pv[3]``; ``base`` (3,) scratch."""
+    for q in range(3):
+        base[q] = Pv[0, q] + d * Pv[1, q]
     m = 0.0
-    for k in range(pts.shape[0]):
-        out[k] = _sample(img, P, pts[k, 0], pts[k, 1], pts[k, 2], w, h)
-        if not np.isfinite(out[k]):
-            return np.nan
-        m += out[k]
-    return m / pts.shape[0]
+    k = 0
+    for a in range(-half, half + 1):
+        for b in range(-half, half + 1):
+            x = _bilinear(img, base[0] + a * Pv[2, 0] + b * Pv[3, 0], base[1] + a * Pv[2, 1] + b * Pv[3, 1],
+                          base[2] + a * Pv[2, 2] + b * Pv[3, 2], w, h)
+            if not np.isfinite(x):
+                return np.nan
+            out[k] = x
+            m += x
+            k += 1
+    return m / k
+
+
+@njit(cache=True, inline="always")
+def _project_frame(P, pos, nrm, t1, t2, spacing, v, out):
+    """``out`` (4, 3): ``P`` applied to vertex ``v``'s position (homogeneous), its normal and its tangents times
+    ``spacing[v]`` (directions)."""
+    for q in range(3):
+        out[0, q] = P[q, 0] * pos[v, 0] + P[q, 1] * pos[v, 1] + P[q, 2] * pos[v, 2] + P[q, 3]
+        out[1, q] = P[q, 0] * nrm[v, 0] + P[q, 1] * nrm[v, 1] + P[q, 2] * nrm[v, 2]
+        out[2, q] = (P[q, 0] * t1[v, 0] + P[q, 1] * t1[v, 1] + P[q, 2] * t1[v, 2]) * spacing[v]
+        out[3, q] = (P[q, 0] * t2[v, 0] + P[q, 1] * t2[v, 1] + P[q, 2] * t2[v, 2]) * spacing[v]
 
 
 @njit(cache=True, parallel=True)
@@ -109,7 +129,8 @@ def patch_scores(pos, nrm, t1, t2, spacing, step, offsets, sel, P, imgs, sizes, 
     is the mean over the views ``sel[v, 1:]`` (-1 = none) of max(0, ZNCC) with the reference view ``sel[v, 0]``;
     NaN when the reference patch leaves the image or its standard deviation is below ``min_std``, or no other
     view sees the whole patch. ``P``: (n_views, 3, 4) projections; ``imgs``: (n_views, H, W) grey float32, view
-    ``i`` occupying ``[:sizes[i, 1], :sizes[i, 0]]``."""
+    ``i`` occupying ``[:sizes[i, 1], :sizes[i, 0]]``. A projection is linear in homogeneous coordinates, so each
+    view projects the vertex's frame once and every sample of every candidate is a sum of those."""
     V = pos.shape[0]
     C = offsets.shape[0]
     K = sel.shape[1]
@@ -120,18 +141,16 @@ def patch_scores(pos, nrm, t1, t2, spacing, step, offsets, sel, P, imgs, sizes, 
         r = sel[v, 0]
         if r < 0 or K < 2 or sel[v, 1] < 0:
             continue
-        pts = np.empty((S, 3))
+        frames = np.empty((K, 4, 3))
+        for j in range(K):
+            if sel[v, j] >= 0:
+                _project_frame(P[sel[v, j]], pos, nrm, t1, t2, spacing, v, frames[j])
+        base = np.empty(3)
         ref = np.empty(S)
         oth = np.empty(S)
         for c in range(C):
             d = offsets[c] * step[v]
-            k = 0
-            for a in range(-half, half + 1):
-                for b in range(-half, half + 1):
-                    for q in range(3):
-                        pts[k, q] = pos[v, q] + d * nrm[v, q] + (a * t1[v, q] + b * t2[v, q]) * spacing[v]
-                    k += 1
-            mr = _patch(imgs[r], P[r], pts, sizes[r, 0], sizes[r, 1], ref)
+            mr = _patch_h(imgs[r], frames[0], base, d, half, sizes[r, 0], sizes[r, 1], ref)
             if not np.isfinite(mr):
                 continue
             vr = 0.0
@@ -146,7 +165,7 @@ def patch_scores(pos, nrm, t1, t2, spacing, step, offsets, sel, P, imgs, sizes, 
                 o = sel[v, j]
                 if o < 0:
                     break
-                mo = _patch(imgs[o], P[o], pts, sizes[o, 0], sizes[o, 1], oth)
+                mo = _patch_h(imgs[o], frames[j], base, d, half, sizes[o, 0], sizes[o, 1], oth)
                 if not np.isfinite(mo):
                     continue
                 vo = 0.0
@@ -202,13 +221,24 @@ def umbrella_normal(pos, nrm, indptr, nbr, mu):
 
 
 # --- geometry helpers -------------------------------------------------------------------------------------
+@njit(cache=True)
+def _vertex_normal_sums(vertices, faces):
+    out = np.zeros_like(vertices)
+    for f in range(faces.shape[0]):
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        e1x, e1y, e1z = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
+        e2x, e2y, e2z = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        for i in (a, b, c):
+            out[i, 0] += nx
+            out[i, 1] += ny
+            out[i, 2] += nz
+    return out
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals (a vertex of no face gets +z)."""
-    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    n = np.zeros_like(vertices)
-    for q in range(3):
-        for c in range(3):
-            n[:, q] += np.bincount(faces[:, c], fn[:, q], minlength=len(vertices))
+    n = _vertex_normal_sums(np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64))
     norm = np.linalg.norm(n, axis=1)
     n[norm == 0] = (0.0, 0.0, 1.0)
     return n / np.where(norm > 0, norm, 1.0)[:, None]
@@ -346,14 +376,14 @@ def _scaled_views(views: list[View], grey: list[np.ndarray]) -> list[View]:
 
 
 def visibility(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, views: list[View],
-               lvl: _Level) -> tuple[np.ndarray, np.ndarray]:
+               lvl: _Level, occlusion: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Which views see which vertices: (cos (n_views, V) float32, 0 where not seen; depth (n_views, V)).
-    Seen: inside the image, facing the camera (cosine >= ``MIN_COS``), and no surface of the mesh more than 2
-    pixel footprints in front of the vertex along the camera's ray."""
+    Seen: inside the image, facing the camera (cosine >= ``MIN_COS``), and (``occlusion``) no surface of the
+    mesh more than 2 pixel footprints in front of the vertex along the camera's ray."""
     from . import raycasting_scene
     import open3d as o3d
 
-    scene = raycasting_scene(trimesh.Trimesh(vertices, faces, process=False))
+    scene = raycasting_scene(trimesh.Trimesh(vertices, faces, process=False)) if occlusion else None
     n = len(views)
     cos = np.zeros((n, len(vertices)), np.float32)
     depth = np.zeros((n, len(vertices)), np.float32)
@@ -371,6 +401,10 @@ def visibility(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, vie
         cand = np.flatnonzero((cs >= MIN_COS) & (z > 0) & (u >= 0) & (w >= 0) & (u <= W - 1) & (w <= H - 1))
         if not len(cand):
             continue
+        if scene is None:
+            cos[i, cand] = cs[cand]
+            depth[i, cand] = z[cand]
+            continue
         rays = np.concatenate([np.broadcast_to(c, (len(cand), 3)), d[cand]], axis=1).astype(np.float32)
         t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
         tol = 2.0 * z[cand] / lvl.focal[i]  # two pixel footprints
@@ -380,13 +414,52 @@ def visibility(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, vie
     return cos, depth
 
 
+@njit(cache=True, parallel=True)
+def facing(vertices, normals, centres, P, seen, min_cos):
+    """``visibility`` again for the pairs ``seen`` (n_views, V) already found unoccluded: the cosine of each
+    view's ray with the vertex normal (0 below ``min_cos``) and the vertex's depth, both (n_views, V)."""
+    n, V = seen.shape
+    cos = np.zeros((n, V), np.float32)
+    depth = np.zeros((n, V), np.float32)
+    for v in prange(V):
+        for i in range(n):
+            if not seen[i, v]:
+                continue
+            dx = vertices[v, 0] - centres[i, 0]
+            dy = vertices[v, 1] - centres[i, 1]
+            dz = vertices[v, 2] - centres[i, 2]
+            dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+            cs = -(normals[v, 0] * dx + normals[v, 1] * dy + normals[v, 2] * dz) / max(dist, 1e-12)
+            if cs >= min_cos:
+                cos[i, v] = cs
+                depth[i, v] = P[i, 2, 0] * vertices[v, 0] + P[i, 2, 1] * vertices[v, 1] + P[i, 2, 2] * vertices[v, 2] + P[i, 2, 3]
+    return cos, depth
+
+
+@njit(cache=True, parallel=True)
+def _top_views(cos, k):
+    n, V = cos.shape
+    out = np.full((V, k), -1, np.int32)
+    for v in prange(V):
+        best = np.full(k, -1.0)
+        for i in range(n):
+            c = cos[i, v]
+            if c <= 0 or c <= best[k - 1]:
+                continue
+            j = k - 1  # insertion: ties keep the lower view index first, as a stable sort does
+            while j > 0 and best[j - 1] < c:
+                best[j] = best[j - 1]
+                out[v, j] = out[v, j - 1]
+                j -= 1
+            best[j] = c
+            out[v, j] = i
+    return out
+
+
 def select_views(cos: np.ndarray, k: int) -> np.ndarray:
     """Per vertex, the ``k`` views with the largest cosines (seen ones only; -1 pads), most frontal first:
     (V, k) int32."""
-    k = min(k, cos.shape[0])
-    order = np.argsort(-cos, axis=0, kind="stable")[:k].T.astype(np.int32)
-    seen = np.take_along_axis(cos.T, order, axis=1) > 0
-    return np.where(seen, order, -1)
+    return _top_views(np.ascontiguousarray(cos, np.float32), min(k, cos.shape[0]))
 
 
 # --- the refinement ---------------------------------------------------------------------------------------
@@ -407,7 +480,8 @@ def refine_mesh(mesh: trimesh.Trimesh, views: list[View], grey: list[np.ndarray]
     info = {"vertices_before": len(verts)}
     fine = _level(views, grey, 1.0)
     if subdivide and len(faces) and len(views) >= 2:
-        cos, depth = visibility(verts, faces, vertex_normals(verts, faces), views, fine)
+        # the footprint in the most frontal view decides the splitting: occlusion can wait
+        cos, depth = visibility(verts, faces, vertex_normals(verts, faces), views, fine, occlusion=False)
         ref = np.argmax(cos, axis=0)
         fp = depth[ref, np.arange(len(verts))] / fine.focal[ref]
         fp = np.where(fp > 0, fp, np.inf)  # a vertex no view sees: nothing to gain from splitting
@@ -417,13 +491,20 @@ def refine_mesh(mesh: trimesh.Trimesh, views: list[View], grey: list[np.ndarray]
     start = verts.copy()
     indptr, nbr = adjacency(faces, len(verts))
     inner = ~border_vertices(faces, len(verts))  # a patch at the mesh's border reaches past it: no data term
+    centres = np.array([v.center for v in views], float).reshape(-1, 3)
     offsets = np.linspace(-1.0, 1.0, 2 * STEPS + 1)
     moved = 0.0
     for level in range(cfg.refine_levels - 1, -1, -1):
         lvl = fine if level == 0 else _level(views, grey, 0.5 ** level)
         for it in range(cfg.refine_iterations):
             normals = vertex_normals(verts, faces)
-            cos, depth = visibility(verts, faces, normals, views, lvl)
+            if it == 0:
+                # occlusion is tested once per level: a round moves the vertices by less than the 2 footprints
+                # its test allows; the facing test follows the normals every round
+                cos, depth = visibility(verts, faces, normals, views, lvl)
+                seen = cos > 0
+            else:
+                cos, depth = facing(verts, normals, centres, lvl.P, seen, MIN_COS)
             sel = select_views(cos, cfg.refine_views)
             rows = np.arange(len(verts))
             r = np.maximum(sel[:, 0], 0)
