@@ -8,8 +8,8 @@ import trimesh
 from photorecon.cameras import Intrinsics, View, look_at_views, sphere_positions
 from photorecon.cli import main
 from photorecon.mesh import raycasting_scene
-from photorecon.mesh.refine import (RefineConfig, patch_scores, refine_mesh, select_views, subdivide_long,
-                                    tangents, vertex_normals)
+from photorecon.mesh.refine import (RefineConfig, _level, facing, patch_scores, refine_mesh, select_views,
+                                    subdivide_long, tangents, vertex_normals, visibility)
 from photorecon.metrics import mesh_metrics
 from photorecon.render import Renderer, SolidNoise
 
@@ -154,6 +154,30 @@ def test_views_and_subdivision():
     e = out.edges_unique_length
     assert e.max() <= 0.3 and len(out.faces) == 4 ** 3 and out.area == pytest.approx(0.5)
     assert len(subdivide_long(tri, 0.3, max_vertices=20).faces) == 16  # 3 -> 6 -> 15 vertices; 63 is over the cap
+
+
+def test_facing_repeats_visibility_on_the_pairs_it_found_unoccluded():
+    """The rounds after a level's first reuse its occlusion test and redo only the facing test: on the pairs
+    found seen, the same cosines and depths as ``visibility``; elsewhere 0, as there."""
+    mesh = _blob(3)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # area-weighted normals, as numpy sums them
+    ref = np.zeros_like(v)
+    for c in range(3):
+        np.add.at(ref, f[:, c], fn)
+    n = vertex_normals(v, f)
+    np.testing.assert_allclose(n, ref / np.linalg.norm(ref, axis=1, keepdims=True), atol=1e-12)
+    views = _views(6, 80, 60)
+    lvl = _level(views, [np.zeros((60, 80), np.float32)] * len(views), 1.0)
+    cos, depth = visibility(v, f, n, views, lvl)
+    seen = cos > 0
+    assert 0.2 < seen.mean() < 0.8  # some pairs facing away or hidden, some seen
+    cos2, depth2 = facing(v, n, np.array([w.center for w in views]), lvl.P, seen, 0.2)
+    np.testing.assert_allclose(cos2, cos, atol=1e-6)
+    np.testing.assert_allclose(depth2, depth, rtol=1e-6)
+    # moved normals: a pair whose vertex now faces away from the camera drops out
+    cos3, _ = facing(v, -n, np.array([w.center for w in views]), lvl.P, seen, 0.2)
+    assert not cos3.any()
 
 
 def test_reconstruct_refine_option(blob_small, tmp_path):
