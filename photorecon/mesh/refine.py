@@ -44,7 +44,8 @@ log = logging.getLogger("photorecon")
 
 MIN_COS = 0.2  # a view sees a vertex under at most ~78 degrees from its normal
 PATCH = 5  # patch side, samples (one reference pixel footprint apart)
-STEPS = 4  # candidate offsets each side of the vertex
+STEPS = 4  # candidate offsets each side of the vertex in a level's first round
+LATER_STEPS = 2  # in its later rounds, whose range has shrunk (0.6 and 0.36 footprints apart, the parabola between)
 RANGE = 2.0  # search range of the first round of a level, reference pixel footprints each side
 SHRINK = 0.6  # range factor from one round to the next
 MIN_STD = 0.002  # a reference patch with a lower grey standard deviation (0..1; half an 8-bit level) is textureless
@@ -492,7 +493,6 @@ def refine_mesh(mesh: trimesh.Trimesh, views: list[View], grey: list[np.ndarray]
     indptr, nbr = adjacency(faces, len(verts))
     inner = ~border_vertices(faces, len(verts))  # a patch at the mesh's border reaches past it: no data term
     centres = np.array([v.center for v in views], float).reshape(-1, 3)
-    offsets = np.linspace(-1.0, 1.0, 2 * STEPS + 1)
     moved = 0.0
     for level in range(cfg.refine_levels - 1, -1, -1):
         lvl = fine if level == 0 else _level(views, grey, 0.5 ** level)
@@ -511,6 +511,7 @@ def refine_mesh(mesh: trimesh.Trimesh, views: list[View], grey: list[np.ndarray]
             footprint = np.where(sel[:, 0] >= 0, depth[r, rows] / lvl.focal[r], 0.0)
             step = footprint * RANGE * SHRINK ** it
             t1, t2 = tangents(normals)
+            offsets = np.linspace(-1.0, 1.0, 2 * (STEPS if it == 0 else LATER_STEPS) + 1)
             scores = patch_scores(verts, normals, t1, t2, footprint, step, offsets, sel, lvl.P, lvl.imgs,
                                   lvl.sizes, PATCH // 2, MIN_STD)
             off, best = parabola_offsets(scores, offsets)
