@@ -6,10 +6,12 @@ in a search-and-regularise form:
 
 1. visibility: a vertex is seen by a view when it lies in the image, faces the camera (cosine above
    ``MIN_COS``) and a ray from the camera hits the current mesh no nearer than 2 pixel footprints in front of
-   it (Open3D ``RaycastingScene``);
+   it (Open3D ``RaycastingScene``). The rays are cast in a level's first round only (a round moves a vertex
+   by less than those 2 footprints); the later rounds redo the facing test with the new normals (``facing``);
 2. views: the ``views`` visible views the surface faces most; the most frontal one is the reference;
 3. data term (``patch_scores``, numba): for ``2 * STEPS + 1`` candidate offsets along the normal (up to
-   ``RANGE`` pixel footprints of the reference view each side), a ``PATCH`` x ``PATCH`` grid on the tangent
+   ``RANGE`` pixel footprints of the reference view each side; ``2 * LATER_STEPS + 1`` in a level's later
+   rounds, whose range has shrunk), a ``PATCH`` x ``PATCH`` grid on the tangent
    plane (one footprint apart) is projected into the reference and the other views; the score of an offset is
    the mean ZNCC of the reference patch with the others' (each clipped at 0: an occluded or blurred view
    weighs nothing rather than pulling). A parabola through the best score and its neighbours gives a sub-step
