@@ -116,7 +116,7 @@ def warm_up() -> dict:
             cfg = FusionConfig(voxels_across=64)
             mesh = fuse(load_frames(dsd, cfg), cfg, dsd.model.points)
             # the photometric refinement (--refine) of that mesh against the photos
-            refine_dataset(mesh, ds, RefineConfig(refine=True, refine_levels=1, refine_iterations=1))
+            refine_dataset(mesh, ds, RefineConfig(refine=True, refine_levels=1, refine_iterations=2))
         _tiny_pm_calls()
         _tiny_hole_calls()
     finally:
