@@ -137,16 +137,10 @@ def _nearest_in_direction(valid: np.ndarray, dy: int, dx: int) -> tuple[np.ndarr
     return ny, nx
 
 
-def _extend_plane(depth: np.ndarray, normal: np.ndarray | None, Kinv: np.ndarray, py: np.ndarray, px: np.ndarray,
-                  qy: np.ndarray, qx: np.ndarray) -> np.ndarray:
-    """The depth at pixels (py, px) of the planes of pixels (qy, qx) (their depth and normal, camera frame);
-    the neighbour's own depth where its plane is seen edge-on or has no normal."""
-    zq = depth[qy, qx].astype(np.float64)
-    if normal is None:
-        return zq
-    rq = np.stack([qx, qy, np.ones_like(qx)], 1).astype(np.float64) @ Kinv.T
-    rp = np.stack([px, py, np.ones_like(px)], 1).astype(np.float64) @ Kinv.T
-    n = normal[qy, qx].astype(np.float64)
+def _plane_depth(zq: np.ndarray, n: np.ndarray, rq: np.ndarray, rp: np.ndarray) -> np.ndarray:
+    """The depth along the rays ``rp`` (N, 3; z = 1) of the planes through the points ``zq * rq`` with normals
+    ``n`` (camera frame); ``zq`` itself where a plane is seen edge-on from ``rp`` or would put the point more
+    than ``MAX_DEPTH_RATIO`` away from ``zq`` (fronto-parallel then)."""
     num = np.einsum("ij,ij->i", n, rq) * zq
     den = np.einsum("ij,ij->i", n, rp)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -154,6 +148,17 @@ def _extend_plane(depth: np.ndarray, normal: np.ndarray | None, Kinv: np.ndarray
     edge_on = np.abs(den) < EDGE_ON_COS * np.linalg.norm(rp, axis=1)
     bad = ~np.isfinite(z) | edge_on | (z <= 0) | (z > zq * MAX_DEPTH_RATIO) | (z < zq / MAX_DEPTH_RATIO)
     return np.where(bad, zq, z)
+
+
+def _extend_plane(depth: np.ndarray, normal: np.ndarray | None, intr, py: np.ndarray, px: np.ndarray,
+                  qy: np.ndarray, qx: np.ndarray) -> np.ndarray:
+    """The depth at pixels (py, px) of the planes of pixels (qy, qx) (their depth and normal, camera frame, in
+    the view of ``intr``); the neighbour's own depth where its plane is seen edge-on or has no normal."""
+    zq = depth[qy, qx].astype(np.float64)
+    if normal is None:
+        return zq
+    return _plane_depth(zq, normal[qy, qx].astype(np.float64), intr.pixel_rays(np.stack([qx, qy], 1)),
+                        intr.pixel_rays(np.stack([px, py], 1)))
 
 
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -187,21 +192,14 @@ def photometric_error(grey: np.ndarray, r: DepthResult, images: dict[str, tuple[
     offs = [(oy, ox) for oy in range(-radius, radius + 1) for ox in range(-radius, radius + 1)]
     ref = np.stack([grey[np.clip(py + oy, 0, H - 1), np.clip(px + ox, 0, W - 1)] for oy, ox in offs], 1)
     intr, T_ref = r.view.intrinsics, r.view.cam_from_world
-    n_x = None if normal is None else np.einsum("ij,ij->i", normal, intr.pixel_rays(np.stack([px, py], 1))) * z
+    ray_c = None if normal is None else intr.pixel_rays(np.stack([px, py], 1))
     # the neighbourhood's projection: the pixel's, and how it moves per pixel right and down on the plane (its
     # local affine map; exact for the 1-pixel offsets of a 3x3 up to the plane's perspective, far below a pixel)
     points = []
     for ox, oy in ((0, 0), (1, 0), (0, 1)):
         uv = np.stack([px + ox, py + oy], 1)
-        zo = z
-        if n_x is not None and (ox or oy):  # the plane's depth at the neighbour, unless it is seen edge-on
-            ray = intr.pixel_rays(uv)
-            den = np.einsum("ij,ij->i", normal, ray)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                zp = n_x / den
-            ok = (np.abs(den) >= EDGE_ON_COS * np.linalg.norm(ray, axis=1)) & (zp > z / MAX_DEPTH_RATIO) & (
-                zp < z * MAX_DEPTH_RATIO)
-            zo = np.where(ok, zp, z)
+        # the plane's depth at the neighbour, unless it is seen edge-on
+        zo = z if normal is None or not (ox or oy) else _plane_depth(z, normal, ray_c, intr.pixel_rays(uv))
         points.append(backproject_pixels(uv, zo, intr, T_ref))
     best = np.full(len(py), np.inf)
     for img, view in images.values():
@@ -332,7 +330,6 @@ def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarr
     if not len(py):
         return changed
     H, W = d.shape
-    Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     z0 = d[py, px].astype(np.float64)
     e_own = photometric_error(grey, r, images, py, px, z0, normal=r.normal[py, px])
     best_e = np.full(len(py), np.inf)
@@ -352,7 +349,7 @@ def settle_edges(r: DepthResult, sources: dict[str, DepthResult], grey: np.ndarr
         ok = np.flatnonzero(qy >= 0)
         if not len(ok):
             continue
-        z = _extend_plane(d, r.normal, Kinv, py[ok], px[ok], qy[ok], qx[ok])
+        z = _extend_plane(d, r.normal, r.view.intrinsics, py[ok], px[ok], qy[ok], qx[ok])
         e = photometric_error(grey, r, images, py[ok], px[ok], z, normal=r.normal[qy[ok], qx[ok]])
         better = e < best_e[ok]
         i = ok[better]
@@ -387,7 +384,6 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         return np.zeros(d.shape, bool), stats
     py, px = np.nonzero(holes)
     on_rim = rim[py, px]
-    Kinv = np.linalg.inv(np.asarray(r.view.intrinsics.K, np.float64))
     margin, e_max, e_only = _noise_levels(r, grey, images)
     n_dir = len(DIRECTIONS)
     z_c = np.zeros((n_dir, len(py)))
@@ -407,7 +403,7 @@ def _fill_pass(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig, 
         if not ok.any():
             continue
         cand = np.zeros(d.shape, np.float32)
-        z = _extend_plane(d, r.normal, Kinv, py[ok], px[ok], qy[ok], qx[ok])
+        z = _extend_plane(d, r.normal, r.view.intrinsics, py[ok], px[ok], qy[ok], qx[ok])
         cand[py[ok], px[ok]] = z
         cn = None
         if r.normal is not None:

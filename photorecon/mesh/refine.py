@@ -226,9 +226,11 @@ def umbrella_normal(pos, nrm, indptr, nbr, mu):
 # --- geometry helpers -------------------------------------------------------------------------------------
 @njit(cache=True)
 def _vertex_normal_sums(vertices, faces):
+    """Per vertex, the sum of its faces' cross products (area-weighted normals, not yet unit)."""
     out = np.zeros_like(vertices)
     for f in range(faces.shape[0]):
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        # the cross product of two edges (twice the face's area along its normal), in scalars: no array per face
         e1x, e1y, e1z = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
         e2x, e2y, e2z = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
@@ -381,46 +383,44 @@ def _scaled_views(views: list[View], grey: list[np.ndarray]) -> list[View]:
 def visibility(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, views: list[View],
                lvl: _Level, occlusion: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Which views see which vertices: (cos (n_views, V) float32, 0 where not seen; depth (n_views, V)).
-    Seen: inside the image, facing the camera (cosine >= ``MIN_COS``), and (``occlusion``) no surface of the
-    mesh more than 2 pixel footprints in front of the vertex along the camera's ray."""
+    Seen: inside the image, facing the camera (cosine >= ``MIN_COS``: ``facing``), and (``occlusion``) no
+    surface of the mesh more than 2 pixel footprints in front of the vertex along the camera's ray."""
     from . import raycasting_scene
     import open3d as o3d
 
-    scene = raycasting_scene(trimesh.Trimesh(vertices, faces, process=False)) if occlusion else None
-    n = len(views)
-    cos = np.zeros((n, len(vertices)), np.float32)
-    depth = np.zeros((n, len(vertices)), np.float32)
-    for i, v in enumerate(views):
-        c = v.center
-        d = vertices - c
-        dist = np.linalg.norm(d, axis=1)
-        cs = -np.einsum("nc,nc->n", normals, d) / np.maximum(dist, 1e-12)
-        P = lvl.P[i]
+    inside = np.zeros((len(views), len(vertices)), bool)
+    for i, P in enumerate(lvl.P):
         z = vertices @ P[2, :3] + P[2, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             u = (vertices @ P[0, :3] + P[0, 3]) / z
             w = (vertices @ P[1, :3] + P[1, 3]) / z
         W, H = lvl.sizes[i]
-        cand = np.flatnonzero((cs >= MIN_COS) & (z > 0) & (u >= 0) & (w >= 0) & (u <= W - 1) & (w <= H - 1))
+        inside[i] = (z > 0) & (u >= 0) & (w >= 0) & (u <= W - 1) & (w <= H - 1)
+    cos, depth = facing(vertices, normals, np.array([v.center for v in views], float).reshape(-1, 3), lvl.P,
+                        inside, MIN_COS)
+    if not occlusion:
+        return cos, depth
+    scene = raycasting_scene(trimesh.Trimesh(vertices, faces, process=False))
+    for i, v in enumerate(views):
+        cand = np.flatnonzero(cos[i] > 0)
         if not len(cand):
             continue
-        if scene is None:
-            cos[i, cand] = cs[cand]
-            depth[i, cand] = z[cand]
-            continue
-        rays = np.concatenate([np.broadcast_to(c, (len(cand), 3)), d[cand]], axis=1).astype(np.float32)
+        d = vertices[cand] - v.center
+        dist = np.linalg.norm(d, axis=1)
+        rays = np.concatenate([np.broadcast_to(v.center, (len(cand), 3)), d], axis=1).astype(np.float32)
         t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        tol = 2.0 * z[cand] / lvl.focal[i]  # two pixel footprints
-        seen = ~(np.isfinite(t) & ((1.0 - t) * dist[cand] > tol))  # a miss: the ray slipped past its own vertex
-        cos[i, cand[seen]] = cs[cand[seen]]
-        depth[i, cand[seen]] = z[cand[seen]]
+        tol = 2.0 * (vertices[cand] @ lvl.P[i, 2, :3] + lvl.P[i, 2, 3]) / lvl.focal[i]  # two pixel footprints
+        hidden = np.isfinite(t) & ((1.0 - t) * dist > tol)  # a miss: the ray slipped past its own vertex
+        cos[i, cand[hidden]] = 0
+        depth[i, cand[hidden]] = 0
     return cos, depth
 
 
 @njit(cache=True, parallel=True)
 def facing(vertices, normals, centres, P, seen, min_cos):
-    """``visibility`` again for the pairs ``seen`` (n_views, V) already found unoccluded: the cosine of each
-    view's ray with the vertex normal (0 below ``min_cos``) and the vertex's depth, both (n_views, V)."""
+    """The facing test of ``visibility`` on the pairs ``seen`` (n_views, V): the cosine of each view's ray (from
+    ``centres``) with the vertex normal, 0 below ``min_cos``, and the vertex's depth (the projections ``P``),
+    both (n_views, V). Later rounds of a level run it alone on the pairs its first round found unoccluded."""
     n, V = seen.shape
     cos = np.zeros((n, V), np.float32)
     depth = np.zeros((n, V), np.float32)
@@ -435,7 +435,8 @@ def facing(vertices, normals, centres, P, seen, min_cos):
             cs = -(normals[v, 0] * dx + normals[v, 1] * dy + normals[v, 2] * dz) / max(dist, 1e-12)
             if cs >= min_cos:
                 cos[i, v] = cs
-                depth[i, v] = P[i, 2, 0] * vertices[v, 0] + P[i, 2, 1] * vertices[v, 1] + P[i, 2, 2] * vertices[v, 2] + P[i, 2, 3]
+                depth[i, v] = (P[i, 2, 0] * vertices[v, 0] + P[i, 2, 1] * vertices[v, 1]
+                               + P[i, 2, 2] * vertices[v, 2] + P[i, 2, 3])
     return cos, depth
 
 
