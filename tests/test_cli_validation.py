@@ -475,3 +475,17 @@ def test_stdout_closed_by_its_reader_is_a_quiet_exit_141(tiny):
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141, err
     assert err.strip() == "", err
+
+
+def test_quiet_success_writes_nothing_to_stderr(blob_small, tmp_path):
+    """``-q`` means errors only: a fresh process that runs PatchMatch, and another that fuses its depth maps
+    (their normals make the tangent-plane test the first parallel kernel), print their one summary line on
+    stdout and nothing on stderr (no library's notes either)."""
+    depth = tmp_path / "depth"
+    fuse = ("fuse", blob_small, "--depth-dir", depth, "-o", tmp_path / "fused")
+    for argv in (("mvs", blob_small, "-o", depth), fuse):
+        res = _run(*argv, timeout=300)
+        assert res.returncode == 0, res.stderr
+        assert res.stderr == "", (argv[0], res.stderr)
+        assert res.stdout.startswith(argv[0] + ":"), res.stdout
+    assert any(depth.glob("*.normal.npy"))

@@ -18,15 +18,11 @@ Every kernel takes contiguous arrays and scalars, and the slow, obviously correc
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
-# numba finds Open3D's older TBB, says it will not use it, and uses its OpenMP/workqueue layer instead
-warnings.filterwarnings("ignore", message="The TBB threading layer requires")
-from numba import njit, prange  # noqa: E402
-
-from .config import EDGE_TOL  # noqa: E402
+from ..jit import njit, prange
+from .config import EDGE_TOL
 
 N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
 N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)

@@ -15,16 +15,15 @@ from __future__ import annotations
 
 import logging
 import math
-import warnings
 from dataclasses import replace
 
 import numpy as np
 import trimesh
-from numba import njit, prange
 
 from ..arrays import unique_rows, unique_sorted
 from ..cameras import backproject_depth, camera_center
 from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
+from ..jit import njit, prange
 from ..progress import bar
 from ..resources import available_bytes, release_memory
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share
@@ -286,14 +285,12 @@ def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc:
             normals = np.ascontiguousarray(f.normal, np.float32)
     keep = np.zeros(0, np.uint8) if keep is None else np.ascontiguousarray(keep, np.uint8)
     weights = np.zeros((1, 1), np.float32) if ones else np.ascontiguousarray(f.confidence, np.float32)
-    with warnings.catch_warnings():  # numba's note that it falls back from an old TBB to OpenMP threads
-        warnings.filterwarnings("ignore", message=".*TBB threading layer")
-        _tsdf_weighted_kernel(np.ascontiguousarray(block_coords.numpy(), np.int32),
-                              np.ascontiguousarray(buf.numpy().ravel(), np.int64), T[:3, :3].copy(), T[:3, 3].copy(),
-                              float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(voxel),
-                              float(trunc), float(depth_max), np.ascontiguousarray(f.depth, np.float32),
-                              weights, np.ascontiguousarray(color, np.uint8), normals, half, keep,
-                              float(normal_sdf), tsdf, weight, grid_color)
+    _tsdf_weighted_kernel(np.ascontiguousarray(block_coords.numpy(), np.int32),
+                          np.ascontiguousarray(buf.numpy().ravel(), np.int64), T[:3, :3].copy(), T[:3, 3].copy(),
+                          float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(voxel),
+                          float(trunc), float(depth_max), np.ascontiguousarray(f.depth, np.float32),
+                          weights, np.ascontiguousarray(color, np.uint8), normals, half, keep,
+                          float(normal_sdf), tsdf, weight, grid_color)
 
 
 def _new_grid(voxel: float, n_blocks: int):

@@ -24,9 +24,9 @@ import logging
 
 import numpy as np
 import trimesh
-from numba import njit
 
 from ..arrays import isin, unique_sorted
+from ..jit import njit
 from .geometry import edge_keys, face_areas, face_cross, face_edge_keys, face_edges, triangle_components
 
 log = logging.getLogger("photorecon")

@@ -35,11 +35,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
-from numba import njit, prange
 
 from ..cameras import View
 from ..errors import BadArgumentError
 from ..fields import check_config
+from ..jit import njit, prange
 from .geometry import face_edges
 
 log = logging.getLogger("photorecon")
