@@ -359,6 +359,32 @@ def test_too_few_complete_photos_is_the_usual_error(blob_small, tmp_path):
         ingest_folder(photos, tmp_path / "work", min_images=2)
 
 
+def test_photos_in_subfolders_are_named_in_the_error_and_in_a_warning(blob_small, tmp_path, caplog):
+    """A project folder (photos in images/, next to masks/) or a camera card (DCIM/100CANON, DCIM/101CANON):
+    the error says which folder to pass; photos beside subfolders of photos are used, with one warning that
+    names what is not read."""
+    from photorecon.cli import main
+    from photorecon.errors import NoImagesError
+    from photorecon.ingest import ingest_folder
+
+    with pytest.raises(NoImagesError, match=r"its subfolder images/ holds 12 image\(s\): pass .*images$"):
+        ingest_folder(blob_small, tmp_path / "work")  # images/, masks/ and depth/ previews: images/ is meant
+    card = tmp_path / "DCIM"
+    _jpeg_folder(blob_small / "images", card / "100CANON", 3)
+    _jpeg_folder(blob_small / "images", card / "101CANON", 2)
+    with pytest.raises(NoImagesError, match=r"its subfolders 100CANON/ \(3\), 101CANON/ \(2\) hold images"):
+        ingest_folder(card, tmp_path / "work2")
+    assert main(["-q", "reconstruct", str(card), "-o", str(tmp_path / "out")]) == 4
+    assert not (tmp_path / "out").exists()
+    for p in list((card / "101CANON").iterdir()):
+        shutil.move(p, card / p.name)
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        ing = ingest_folder(card, tmp_path / "work3")
+    assert len(ing.images) == 2
+    warn = [r.getMessage() for r in caplog.records if "subfolders" in r.getMessage()]
+    assert len(warn) == 1 and "100CANON/: 3" in warn[0] and "only the 2 photo(s)" in warn[0], warn
+
+
 def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, caplog):
     from photorecon.errors import InputDataError
     from photorecon.io.dataset import read_model

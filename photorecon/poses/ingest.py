@@ -59,6 +59,34 @@ def not_a_folder(path: str | Path) -> str:
     return f"{path}: no such image folder (or video file)"
 
 
+def images_in_subfolders(folder: str | Path) -> list[tuple[Path, int]]:
+    """(subfolder, image files in it) for each subfolder of ``folder`` (one level down, hidden ones skipped)
+    that holds images: what a user who passed a project folder (``images/``) or a camera card (``DCIM/`` with
+    ``100CANON/``, ``101CANON/``) meant. photorecon reads only the folder's own photos."""
+    out = []
+    for sub in sorted(p for p in Path(folder).iterdir() if p.is_dir() and not p.name.startswith(".")):
+        try:
+            n = sum(1 for p in sub.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+        except OSError:  # a subfolder that cannot be listed holds nothing photorecon could read
+            continue
+        if n:
+            out.append((sub, n))
+    return out
+
+
+def subfolders_hint(folder: str | Path, subs: list[tuple[Path, int]]) -> str:
+    """What to pass instead, for the subfolders ``images_in_subfolders`` found: a project's ``images/`` (next
+    to ``masks/``, ``depth/``) when there is one."""
+    named = [(s, n) for s, n in subs if s.name.lower() == "images"]
+    subs = named or subs
+    if len(subs) == 1:
+        sub, n = subs[0]
+        return f"its subfolder {sub.name}/ holds {n} image(s): pass {sub}"
+    listed = ", ".join(f"{s.name}/ ({n})" for s, n in subs[:6]) + (" ..." if len(subs) > 6 else "")
+    return (f"its subfolders {listed} hold images: photorecon reads the photos of one folder; pass one, or "
+            "put the photos together in one folder")
+
+
 def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
     """(image files sorted by name, other files) in ``folder`` (not recursive; hidden files skipped). The photos
     are the folder's own entries, named by nobody but the user who made it: a link to a photo elsewhere (a common
@@ -162,10 +190,16 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
         rest = skipped[len(truncated):]
         log.warning("skipped %d file(s) that are not readable images: %s", len(rest),
                     ", ".join(rest[:20]) + (" ..." if len(rest) > 20 else ""))
+    subs = images_in_subfolders(folder)
     if len(out) < min_images:
         found = f"{len(out)} readable image(s)" if out else "no readable image"
         need = f"; at least {min_images} needed" if out else ""  # none: the count needed says nothing more
-        raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp){need}")
+        hint = f"; {subfolders_hint(folder, subs)}" if subs else ""
+        raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp){need}{hint}")
+    if subs:
+        log.warning("%s: the images in its subfolders are not read (%s); only the %d photo(s) in the folder "
+                    "itself are used", folder, ", ".join(f"{s.name}/: {n}" for s, n in subs[:6])
+                    + (" ..." if len(subs) > 6 else ""), len(out))
     _check_content(folder, len(out), flat, len(pictures))
     return Ingest(out, skipped, renamed)
 
