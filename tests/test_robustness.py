@@ -803,3 +803,11 @@ def test_too_little_confirmed_depth_fails_loudly_with_its_own_message(blob_small
     assert 0 < mean < 50 and "of the 12 views have a confirmed depth" in line and "at least 50% needed" in line
     assert "use --mvs patchmatch (the default)" in line
     assert not (out / "depth").exists() and not (out / "mesh.ply").exists()
+
+
+def test_texture_of_a_folder_without_a_mesh_says_what_to_pass(ds, tmp_path, capsys):
+    before = tree_hash(ds.parent)
+    assert main(["texture", str(ds), "-o", str(tmp_path / "t")]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{ds}: no mesh.ply" in err and "--mesh" in err, err
+    assert not (tmp_path / "t").exists() and tree_hash(ds.parent) == before
