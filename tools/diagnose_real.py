@@ -9,7 +9,10 @@ Categories of a miss at tau (distance > tau):
   ``outside_box``    more than --crop-margin outside the reference's bounding box (what bench_real leaves out);
   ``support``        within --support-height of the support plane (the platform: not in a hand-cleaned reference);
   ``reference_hole`` no reference point within --hole-radius: the reference has a hole where the mesh has surface;
-  ``mesh_off``       reference points nearby, the mesh is off the surface by tau..hole-radius;
+  ``reference_thin`` the nearest reference point lies where the reference is thin: fewer than half the reference's
+                     median count of neighbours within --density-radius (the rims of its coverage, where a scan
+                     runs out: a miss there may be the reference's as much as the mesh's);
+  ``mesh_off``       the reference is dense nearby, the mesh is off the surface by tau..hole-radius;
 * completeness (reference point -> result surface):
   ``mesh_hole``      no result surface within --hole-radius: the mesh has a hole where the reference has surface;
   ``mesh_off``       result surface nearby, off by tau..hole-radius.
@@ -51,10 +54,12 @@ from photorecon.metrics import distance_to, load_reference, sample_surface  # no
 HEIGHT_BINS_MM = (-np.inf, 0.0, 1.0, 3.0, 6.0, 12.0, 24.0, np.inf)
 SLOPE_BINS = (0, 30, 60, 90, 120, 180)
 VIEW_BINS = (0, 1, 2, 3, 5, 8, 1000)
-ACC_CATS = ("outside_box", "support", "reference_hole", "mesh_off")
+ACC_CATS = ("outside_box", "support", "reference_hole", "reference_thin", "mesh_off")
+THIN = 0.5  # reference_thin: fewer neighbours than this fraction of the reference's median count
 COMP_CATS = ("mesh_hole", "mesh_off")
 COLORS = {"ok": (170, 170, 170), "outside_box": (120, 120, 120), "support": (0, 160, 255),
-          "reference_hole": (255, 80, 200), "mesh_off": (0, 0, 230), "mesh_hole": (230, 120, 0)}  # BGR
+          "reference_hole": (255, 80, 200), "reference_thin": (200, 170, 255), "mesh_off": (0, 0, 230),
+          "mesh_hole": (230, 120, 0)}  # BGR
 
 
 def views_seeing(points: np.ndarray, normals: np.ndarray, views, scene, tol: float) -> np.ndarray:
@@ -126,11 +131,21 @@ def grouped(values: np.ndarray, edges, cats: np.ndarray, names) -> list[dict]:
     return rows
 
 
+def reference_density(tree: cKDTree, reference: np.ndarray, radius: float) -> np.ndarray:
+    """Each reference point's neighbours within ``radius`` (itself included), over the reference's median count:
+    1 where the reference is as dense as usual, towards 0 where its coverage thins out."""
+    count = tree.query_ball_point(reference, radius, workers=-1, return_length=True)
+    return count / max(float(np.median(count)), 1.0)
+
+
 def diagnose(mesh: trimesh.Trimesh, reference: np.ndarray, ref_normals: np.ndarray | None, views, tau: float,
-             hole_radius: float, support_height: float, crop_margin: float, samples: int) -> dict:
+             hole_radius: float, support_height: float, crop_margin: float, samples: int,
+             density_radius: float | None = None) -> dict:
     pts, nrm = sample_surface(mesh, samples)
     tree = cKDTree(reference)
-    d_acc = tree.query(pts, workers=-1)[0]
+    d_acc, nearest = tree.query(pts, workers=-1)
+    density_radius = density_radius or 3 * tau
+    thin = reference_density(tree, reference, density_radius)[nearest] < THIN
     d_comp = distance_to(mesh, reference)
     scene = raycasting_scene(mesh)
     if ref_normals is None:  # the nearest result face's normal
@@ -157,6 +172,7 @@ def diagnose(mesh: trimesh.Trimesh, reference: np.ndarray, ref_normals: np.ndarr
     acc = np.full(len(pts), "ok", object)
     miss = d_acc > tau
     acc[miss & ~outside] = "mesh_off"
+    acc[miss & ~outside & thin] = "reference_thin"
     acc[miss & ~outside & (d_acc > hole_radius)] = "reference_hole"
     acc[miss & ~outside & (np.abs(h_pts) < support_height) & (plane is not None)] = "support"
     acc[miss & outside] = "outside_box"
@@ -165,10 +181,14 @@ def diagnose(mesh: trimesh.Trimesh, reference: np.ndarray, ref_normals: np.ndarr
     comp[d_comp > hole_radius] = "mesh_hole"
 
     scored = ~outside
-    out = {"tau": tau, "hole_radius": hole_radius, "support_height": support_height, "support_plane": support,
+    dense = ~outside & ~thin & (d_acc <= hole_radius)
+    out = {"tau": tau, "hole_radius": hole_radius, "density_radius": density_radius,
+           "support_height": support_height, "support_plane": support,
            "result_samples": int(len(pts)), "result_samples_scored": int(scored.sum()),
            "reference_points": int(len(reference)),
            "accuracy": float((~miss[scored]).mean()), "completeness": float((d_comp <= tau).mean()),
+           "accuracy_where_reference_dense": float((~miss[dense]).mean()) if dense.any() else None,
+           "result_samples_where_reference_dense": int(dense.sum()),
            "accuracy_misses": {c: int((acc == c).sum()) for c in ACC_CATS},
            "completeness_misses": {c: int((comp == c).sum()) for c in COMP_CATS}}
     p, r = out["accuracy"], out["completeness"]
@@ -192,12 +212,15 @@ def print_tables(rep: dict) -> None:
           f"(of {rep['result_samples']} result samples)")
     print("completeness misses:", ", ".join(f"{k} {v}" for k, v in rep["completeness_misses"].items()),
           f"(of {rep['reference_points']} reference points)")
+    if rep["accuracy_where_reference_dense"] is not None:
+        print(f"accuracy where the reference is dense (not reference_thin or reference_hole): "
+              f"{rep['accuracy_where_reference_dense']:.3f} over {rep['result_samples_where_reference_dense']} samples")
     for key, title in (("by_height_mm", "height above the support, mm"), ("by_slope_deg", "slope, degrees (0 = up)"),
                        ("by_photos", "photos that saw it")):
         print(f"\n{title}")
         print("| bin | result | acc. miss | " + " | ".join(ACC_CATS) + " | reference | comp. miss | "
               + " | ".join(COMP_CATS) + " |")
-        print("|---" * (6 + len(ACC_CATS) + len(COMP_CATS)) + "|")
+        print("|---" * (5 + len(ACC_CATS) + len(COMP_CATS)) + "|")
         for a, c in zip(rep[key]["result"], rep[key]["reference"]):
             fa = a["missed"] / a["points"] if a["points"] else 0.0
             fc = c["missed"] / c["points"] if c["points"] else 0.0
@@ -238,7 +261,7 @@ def write_png(rep: dict, views, path: Path) -> None:
         cv2.rectangle(canvas, (30, 470 + 18 * k), (42, 482 + 18 * k), col, -1)
         cv2.putText(canvas, c, (48, 481 + 18 * k), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.putText(canvas, f"bar height: points (log); coloured: misses at tau {rep['tau'] * 1000:g} mm by cause",
-                (30, 600), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+                (30, 490 + 18 * len(COLORS)), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     # the points from the first camera, cropped to them: result samples (top) and reference points (bottom),
     # misses drawn last
     v = views[0]
@@ -273,6 +296,8 @@ def main() -> int:
     ap.add_argument("--reference", help="reference cloud (default: DATASET/reference.ply)")
     ap.add_argument("--tau", type=float, default=0.0005, help="miss threshold, scene units (default 0.0005)")
     ap.add_argument("--hole-radius", type=float, default=None, help="no point within this: a hole (default 4 tau)")
+    ap.add_argument("--density-radius", type=float, default=None,
+                    help="reference density counted within this (default 3 tau): reference_thin below half its median")
     ap.add_argument("--support-height", type=float, default=0.001,
                     help="result misses within this of the support plane count as 'support' (default 0.001)")
     ap.add_argument("--crop-margin", type=float, default=0.005, help="as bench_real (default 0.005)")
@@ -293,7 +318,8 @@ def main() -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     rep = diagnose(mesh, reference, reference_normals(ref_path, len(reference)), views, args.tau,
-                   args.hole_radius or 4 * args.tau, args.support_height, args.crop_margin, args.samples)
+                   args.hole_radius or 4 * args.tau, args.support_height, args.crop_margin, args.samples,
+                   args.density_radius)
     print_tables(rep)
     if args.png:
         write_png(rep, views, Path(args.png))
