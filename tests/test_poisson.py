@@ -144,40 +144,6 @@ def test_floaters_dropped_details_kept():
     assert len(loose.faces) == len(main.faces) + len(near.faces) + len(far.faces)
 
 
-def _cap(sphere, axis, angle):
-    """The faces of ``sphere`` whose centres lie within ``angle`` (radians) of the unit ``axis``."""
-    return np.arccos(np.clip(sphere.triangles_center @ np.asarray(axis, float), -1, 1)) < angle
-
-
-def test_debris_sized_pieces_of_the_surface_are_kept_noise_is_not():
-    """A TSDF mesh in pieces (a dark object's depth maps confirm it in patches): a small patch of the surface
-    inside a hole of the main surface stays; a blob, a patch turned inside out and a patch standing 5 voxels
-    in front of the surface go, as every piece of that size goes on a mesh without a voxel size."""
-    voxel = 0.02
-    sphere = trimesh.creation.icosphere(subdivisions=5)
-    holes = np.zeros(len(sphere.faces), bool)
-    for axis in ((0, 0, 1), (0, 0, -1), (1, 0, 0)):
-        holes |= _cap(sphere, axis, 0.15)
-    main = trimesh.Trimesh(sphere.vertices, sphere.faces[~holes], process=False)
-    piece = sphere.submesh([np.flatnonzero(_cap(sphere, (0, 0, 1), 0.06))], append=True)  # on the surface
-    flipped = sphere.submesh([np.flatnonzero(_cap(sphere, (0, 0, -1), 0.06))], append=True)
-    flipped.invert()
-    fin = sphere.submesh([np.flatnonzero(_cap(sphere, (1, 0, 0), 0.06))], append=True)
-    fin.vertices *= 1 + 5 * voxel  # 5 voxels in front of the surface
-    blob = _sphere_at((0, 1.02, 0), 0.01, 1)
-    mesh = trimesh.util.concatenate([main, piece, flipped, fin, blob])
-    assert piece.area / main.area < CleanConfig().min_detail  # every piece is of debris size
-    mesh.metadata.update({"mesher": "tsdf", "voxel_size": voxel})
-    out = clean(mesh, CleanConfig(fill_holes_voxels=0))
-    c = out.triangles_center
-    assert np.sum(c[:, 2] > 0.998) == len(piece.faces)  # the piece of the surface stayed, whole
-    assert not np.any(c[:, 2] < -0.995)  # the inside-out patch went
-    assert not np.any(np.linalg.norm(c, axis=1) > 1.05)  # so did the fin and the blob
-    assert len(out.faces) == len(main.faces) + len(piece.faces)
-    mesh.metadata.pop("voxel_size")
-    assert len(clean(mesh, CleanConfig(fill_holes_voxels=0)).faces) == len(main.faces)
-
-
 def test_preview_frames_the_bulk_not_a_far_fragment():
     main = _sphere_at((0, 0, 0), 1.0, 4)
     far = _sphere_at((30, 0, 0), 0.1)

@@ -176,8 +176,7 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
         scene = detect_and_remove(m, cameras, metadata.get("voxel_size"), cfg.object_cut, mode)
     support = scene["support_removed"]
     if len(m.triangles) and min_component > 0:
-        drop = floater_mask(m, min_component, cfg.floater_distance, min(cfg.min_detail, min_component), cameras,
-                            voxel=metadata.get("voxel_size"))
+        drop = floater_mask(m, min_component, cfg.floater_distance, min(cfg.min_detail, min_component), cameras)
         if drop.any():
             m.remove_triangles_by_mask(drop)
             m.remove_unreferenced_vertices()
@@ -217,17 +216,7 @@ def camera_centres(cameras) -> np.ndarray | None:
     return np.array([c.center if hasattr(c, "center") else c for c in cameras], float).reshape(-1, 3)
 
 
-# A component of debris size is a piece of the surface, and kept, when it lies along the main surface: within
-# PIECE_MAX_GAP voxels of it (the hole filling's default radius), its faces turned like the main surface's
-# nearest normals (area-weighted mean cosine at least PIECE_MIN_COS) and on average no more than
-# PIECE_MAX_FRONT voxels in front of it (towards the outside, where floaters are)
-PIECE_MAX_GAP = 10.0
-PIECE_MIN_COS = 0.5
-PIECE_MAX_FRONT = 3.0
-
-
-def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None,
-                 voxel: float | None = None) -> np.ndarray:
+def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
     """Per triangle of the Open3D mesh ``m``: True where it belongs to debris or a floater.
 
     Components are connected triangles; their size is their area relative to the largest. The *main surface*
@@ -235,14 +224,7 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     its gap to the main surface (the nearest pair of vertices) exceeds ``floater_distance`` x the scene
     size: the extent of the main surface (its area-weighted 1-99 percentile box diagonal) or, with
     ``cameras``, the median camera distance to it when that is smaller. Small components within that gap
-    are details and kept.
-
-    Below ``min_detail`` of the largest a component is debris and dropped, unless (on a TSDF mesh: ``voxel``
-    known) it is a piece of the surface itself, as where the depth maps confirmed the surface only in patches
-    (a dark or shiny object): on average within ``PIECE_MAX_GAP`` voxels of the main surface, its faces
-    turned like the main surface's nearest vertices (``PIECE_MIN_COS``) and no more than ``PIECE_MAX_FRONT``
-    voxels in front of them. A blob of noise (faces turned every way), a fin standing out in front of the
-    surface or a speck farther off stays debris."""
+    are details and kept, unless below ``min_detail`` of the largest (debris)."""
     from scipy.spatial import cKDTree
 
     labels, areas = triangle_components(np.asarray(m.vertices), np.asarray(m.triangles))
@@ -253,20 +235,24 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     main = rel >= min_component
     drop = rel < min_detail
     small = np.flatnonzero(~main & ~drop)
-    pieces = bool(voxel) and drop.any()
-    if len(small) or pieces:
+    if len(small):
         V = np.asarray(m.vertices)
         T = np.asarray(m.triangles)
-        main_T = T[main[labels]]
+        main_tris = main[labels]
+        main_T = T[main_tris]
         main_v = unique_sorted(main_T)
-        cross = face_cross(V, main_T)
-        normals = _vertex_normals(main_T, cross, len(V))[main_v] if pieces else None
-        size = _scene_size(V, main_T, cross, cameras) if len(small) else 0.0
-        del main_T, cross
+        # the scene's size: area-weighted triangle centres of the main surface, robust to its own outliers
+        centres = face_centres(V, main_T)
+        w = np.linalg.norm(face_cross(V, main_T), axis=1)
+        del main_T
+        lo, hi = _weighted_percentile(centres, w, 1), _weighted_percentile(centres, w, 99)
+        size = float(np.linalg.norm(hi - lo))
+        if cameras is not None and len(cameras):
+            cams = camera_centres(cameras)
+            mid = _weighted_percentile(centres, w, 50)
+            size = min(size, float(np.median(np.linalg.norm(cams - mid, axis=1))))
+        del centres, w
         tree = cKDTree(V[main_v])
-        if pieces:
-            drop &= ~_surface_pieces(V, T, labels, drop, tree, V[main_v], normals, voxel)
-            del normals
         del main_v
         rng = np.random.default_rng(0)
         order = np.argsort(labels, kind="stable")
@@ -285,51 +271,6 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     if n_drop:
         log.debug("cleaning: %d of %d components dropped (debris or floaters)", n_drop, n)
     return drop[labels]
-
-
-def _scene_size(V: np.ndarray, tris: np.ndarray, cross: np.ndarray, cameras) -> float:
-    """The scene's size for ``floater_mask``: the main surface's area-weighted 1-99 percentile box diagonal
-    (robust to its own outliers), or the median camera distance to its centre when that is smaller."""
-    centres = face_centres(V, tris)
-    w = np.linalg.norm(cross, axis=1)
-    lo, hi = _weighted_percentile(centres, w, 1), _weighted_percentile(centres, w, 99)
-    size = float(np.linalg.norm(hi - lo))
-    if cameras is not None and len(cameras):
-        cams = camera_centres(cameras)
-        mid = _weighted_percentile(centres, w, 50)
-        size = min(size, float(np.median(np.linalg.norm(cams - mid, axis=1))))
-    return size
-
-
-def _vertex_normals(tris: np.ndarray, cross: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Area-weighted unit vertex normals (n_vertices, 3) of the faces ``tris`` with cross products ``cross``."""
-    nrm = np.zeros((n_vertices, 3))
-    for k in range(3):
-        nrm[:, k] = sum(np.bincount(tris[:, i], cross[:, k], minlength=n_vertices) for i in range(3))
-    return nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
-
-
-def _surface_pieces(V: np.ndarray, T: np.ndarray, labels: np.ndarray, debris: np.ndarray, tree,
-                    main_points: np.ndarray, main_normals: np.ndarray, voxel: float) -> np.ndarray:
-    """Per component: True for the ``debris`` that lies along the main surface (``floater_mask``): area-weighted
-    over its faces, each against the nearest main-surface vertex (``tree`` over ``main_points``)."""
-    faces = np.flatnonzero(debris[labels])
-    tris, lab = T[faces], labels[faces]
-    cross = face_cross(V, tris)
-    w = np.linalg.norm(cross, axis=1)
-    centres = face_centres(V, tris)
-    # a face farther than this makes its piece's mean too far in any case; the bound keeps the search short
-    # for the debris inside a closed surface (about equally far from all of it)
-    dist, q = tree.query(centres, k=1, distance_upper_bound=2 * PIECE_MAX_GAP * voxel)
-    q = np.minimum(q, len(main_points) - 1)  # no neighbour within the bound: dist is inf, the piece fails
-    nq = main_normals[q]
-    cos = np.einsum("ij,ij->i", cross, nq) / np.maximum(w, 1e-30)
-    front = np.einsum("ij,ij->i", centres - main_points[q], nq)
-    total = np.bincount(lab, w, minlength=len(debris))
-    mean = lambda x: np.bincount(lab, w * x, minlength=len(debris)) / np.maximum(total, 1e-300)  # noqa: E731
-    with np.errstate(invalid="ignore"):  # inf x 0 (a degenerate face out of bounds): NaN, the piece fails
-        return (debris & (total > 0) & (mean(dist) <= PIECE_MAX_GAP * voxel) & (mean(cos) >= PIECE_MIN_COS)
-                & (mean(front) <= PIECE_MAX_FRONT * voxel))
 
 
 def _linked(centres: np.ndarray, labels: np.ndarray, kept: np.ndarray, candidates: np.ndarray, gap: float) -> np.ndarray:
