@@ -405,6 +405,22 @@ def test_given_poses_skip_a_truncated_photo_naming_it(blob_small, tmp_path, capl
         ingest_given(model, photos, tmp_path / "out2")
 
 
+def test_given_poses_name_every_missing_photo_in_one_line_and_write_nothing(blob_small, tmp_path):
+    from photorecon.errors import InputDataError
+    from photorecon.io.dataset import read_model
+    from photorecon.poses.ingest import ingest_given
+
+    photos = _jpeg_folder(blob_small / "images", tmp_path / "photos", 9)  # views 9, 10 and 11 have no photo
+    model = read_model(blob_small / "sparse" / "0")
+    with pytest.raises(InputDataError) as exc:
+        ingest_given(model, photos, tmp_path / "out")
+    msg = str(exc.value)
+    assert msg.startswith("view view_009: image view_009")
+    assert "3 of the 12 views' images are not there: view_009, view_010, view_011" in msg
+    assert "pass the folder that holds the photos" in msg and "\n" not in msg
+    assert not (tmp_path / "out").exists()
+
+
 # --- every listed image format works end to end --------------------------------------------------------------------
 def test_webp_photos_are_ingested_as_png_copies(blob_small, tmp_path):
     """COLMAP's reader cannot decode WebP: ingest writes a PNG copy (NAME.png, or NAME.webp.png when a photo

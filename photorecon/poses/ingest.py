@@ -331,7 +331,19 @@ def ingest_given(model, images_dir: Path, out: Path, masks_dir: Path | None = No
     from ..layout import Layout
 
     images_dir = Path(images_dir)
-    sources = {v.name: _given_image(images_dir, v) for v in model.views}
+    sources, missing = {}, []
+    for v in model.views:
+        try:
+            sources[v.name] = _given_image(images_dir, v)
+        except _MissingImage as exc:
+            missing.append((v.name, exc))
+    if missing:
+        first = str(missing[0][1])
+        if len(missing) > 1:
+            names = ", ".join(n for n, _ in missing[:5]) + (" ..." if len(missing) > 5 else "")
+            first += f" ({len(missing)} of the {len(model.views)} views' images are not there: {names})"
+        raise InputDataError(f"{first}; pass the folder that holds the photos the cameras file names, or take "
+                             "those views out of it")
     check_distinct_views(((Path(p.name).stem, str(p.relative_to(images_dir))) for p in sources.values()),
                          str(images_dir))
     layout = Layout(out)
@@ -386,6 +398,10 @@ def ingest_given(model, images_dir: Path, out: Path, masks_dir: Path | None = No
     return SparseModel(views, model.points, model.colors, model.point_ids, model.errors, model.observations)
 
 
+class _MissingImage(InputDataError):
+    """A given camera's image is not in the image folder (``ingest_given`` names them all at once)."""
+
+
 def _given_image(images_dir: Path, view) -> Path:
     """The image file of a given camera in ``images_dir``: the name its camera file gives, else the view's name
     with any image extension (in any letter case); inside ``images_dir`` and with a usable name."""
@@ -396,7 +412,7 @@ def _given_image(images_dir: Path, view) -> Path:
         cands = sorted(p for p in src.parent.iterdir() if p.stem == stem and p.suffix.lower() in IMAGE_SUFFIXES) \
             if src.parent.is_dir() else []
         if not cands:
-            raise InputDataError(f"view {view.name}: image {name} not found in {images_dir}")
+            raise _MissingImage(f"view {view.name}: image {name} not found in {images_dir}")
         src = inside(images_dir, str(cands[0].relative_to(images_dir)), f"view {view.name}")
     check_name_length(src)
     return src
