@@ -448,6 +448,48 @@ def test_webp_photos_are_ingested_as_png_copies(blob_small, tmp_path):
     assert np.array_equal(cv2.imread(str(work / "c.png"), cv2.IMREAD_UNCHANGED)[..., 3], alpha)
 
 
+def test_heic_photos_are_ingested_upright_as_png_copies_with_their_focal_length(blob_small, tmp_path):
+    """An iPhone's HEIC photos: decoded (pillow-heif), turned upright by their EXIF orientation, written as PNG
+    copies for COLMAP, with the focal length prior from their EXIF; given cameras read them too."""
+    import cv2
+    from PIL import Image
+
+    from photorecon.io.dataset import read_model
+    from photorecon.io.images import register_heif
+    from photorecon.ingest import ingest_folder
+    from photorecon.poses.ingest import ingest_given
+
+    assert register_heif()
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    rgb = cv2.imread(str(blob_small / "images" / "view_000.png"))[..., ::-1]  # 160x120
+    exif = Image.Exif()
+    exif[0x8769] = {0xA405: 28}  # 28 mm equivalent focal length
+    Image.fromarray(rgb).save(photos / "IMG_0001.HEIC", quality=95, exif=exif.tobytes())
+    exif[0x0112] = 6  # stored lying on its side; shown rotated 90 degrees clockwise
+    Image.fromarray(np.rot90(rgb)).save(photos / "IMG_0002.heic", quality=95, exif=exif.tobytes())
+    ing = ingest_folder(photos, tmp_path / "work")
+    assert [im.name for im in ing.images] == ["IMG_0001.png", "IMG_0002.png"]
+    assert ing.renamed == {"IMG_0001.png": "IMG_0001.HEIC", "IMG_0002.png": "IMG_0002.heic"}
+    for im in ing.images:
+        got = cv2.imread(str(tmp_path / "work" / im.name))[..., ::-1].astype(float)
+        assert got.shape == rgb.shape and (im.width, im.height) == (160, 120)
+        err, turned = np.abs(got - rgb).mean(), np.abs(got - rgb[::-1, ::-1]).mean()
+        assert err < 8 and err < turned / 3, (err, turned)  # lossy, but this picture, this way up
+        assert im.focal_prior_px == pytest.approx(28 / 36 * 160, rel=1e-6)
+    # given cameras whose photos are HEIC
+    given = tmp_path / "given"
+    given.mkdir()
+    model = read_model(blob_small / "sparse" / "0")
+    for v in model.views[:3]:
+        img = cv2.imread(str(blob_small / "images" / f"{v.name}.png"))[..., ::-1]
+        Image.fromarray(img).save(given / f"{v.name}.heic", quality=95)
+    model.views = model.views[:3]
+    out = ingest_given(model, given, tmp_path / "out")
+    first = cv2.imread(str(tmp_path / "out" / "images" / "view_000.png"))[..., ::-1].astype(float)
+    assert len(out.views) == 3 and np.abs(first - rgb).mean() < 8
+
+
 @pytest.mark.slow
 def test_sfm_registers_webp_photos_among_pngs(ring16, tmp_path):
     """Half the photos WebP (lossless), half PNG: every photo registers, with poses as accurate as the PNGs'."""

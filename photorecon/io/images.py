@@ -11,12 +11,38 @@ from .atomic import atomic_path
 from .paths import inside
 
 
+def register_heif() -> bool:
+    """Let Pillow open HEIC/HEIF photos (``pillow-heif``; its opener applies the photo's rotation and resets
+    the EXIF orientation to 1). False when the package is missing."""
+    try:
+        import pillow_heif
+    except ImportError:
+        return False
+    pillow_heif.register_heif_opener()
+    return True
+
+
+def read_bgr(path: str | Path) -> np.ndarray | None:
+    """8-bit BGR (H, W, 3) with the EXIF orientation applied, by OpenCV, or by Pillow for what OpenCV cannot
+    decode (HEIC); None when neither can."""
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is not None or Path(path).suffix.lower() not in (".heic", ".heif") or not register_heif():
+        return img
+    from PIL import Image, ImageOps
+
+    try:
+        with Image.open(path) as im:
+            return np.ascontiguousarray(np.asarray(ImageOps.exif_transpose(im).convert("RGB"))[..., ::-1])
+    except Exception:  # damaged or not an image: the caller's error names the file
+        return None
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """8-bit RGB (H, W, 3); grey images are repeated into three channels. An alpha channel (RGBA, grey +
     alpha) is dropped and the colour kept as stored, not blended with any background: read it as a mask
     with ``read_alpha``. Raises ``InputDataError`` naming the file if it cannot be decoded."""
     path = Path(path)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    img = read_bgr(path)
     if img is None:
         raise InputDataError(f"{path}: cannot read image (missing, corrupt or not an image)")
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
@@ -30,6 +56,8 @@ def damaged_image(path: str | Path) -> str | None:
     from PIL import Image, ImageFile
 
     path = Path(path)
+    if path.suffix.lower() in (".heic", ".heif"):
+        register_heif()
     try:
         im = Image.open(path)
     except Exception:  # not a format Pillow reads (or not an image): the caller's decoder decides
@@ -91,6 +119,16 @@ def read_alpha(path: str | Path) -> np.ndarray | None:
     if has is False:
         return None
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None and path.suffix.lower() in (".heic", ".heif") and register_heif():
+        from PIL import Image, ImageOps
+
+        try:
+            with Image.open(path) as im:
+                if "A" not in im.getbands():
+                    return None
+                return np.ascontiguousarray(np.asarray(ImageOps.exif_transpose(im).getchannel("A")))
+        except Exception:  # damaged: named below
+            pass
     if img is None:
         raise InputDataError(f"{path}: cannot read image (missing, corrupt or not an image)")
     if img.ndim == 3 and img.shape[2] in (2, 4):

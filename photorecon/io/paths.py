@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..errors import InputDataError
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".heic", ".heif")
 # photorecon names files after a view: NAME.normal.npy, NAME.EXT.png masks, and writes each through a temporary
 # ".NAME.XXXXXXXX.EXT" next to it (io/atomic.py): a photo's name may use the file system's limit less this
 NAME_MARGIN = 32

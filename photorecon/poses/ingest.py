@@ -20,13 +20,13 @@ import numpy as np
 from ..cameras import Intrinsics
 from ..errors import BadArgumentError, InputDataError, NoImagesError, SfMError
 from ..io.atomic import atomic_path
-from ..io.images import image_write_failed
+from ..io.images import image_write_failed, read_bgr, register_heif
 from ..io.paths import IMAGE_SUFFIXES, check_distinct_views, check_name_length, inside
 
 log = logging.getLogger("photorecon")
 
 # formats COLMAP's image reader cannot decode (pycolmap 4.x): ingested as PNG copies
-COLMAP_UNREADABLE = (".webp",)
+COLMAP_UNREADABLE = (".webp", ".heic", ".heif")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 FLAT_STD = 2.0  # grey levels: a photo whose pixels vary less than this is one flat colour (nothing to match)
 
@@ -100,7 +100,10 @@ def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
 
 
 def _exif(path: Path) -> tuple[int, float | None]:
-    """(EXIF orientation, focal length prior as a fraction of the long side) or (1, None)."""
+    """(EXIF orientation, focal length prior as a fraction of the long side) or (1, None). A HEIC photo's
+    orientation is applied by its decoder (1 here)."""
+    if path.suffix.lower() in (".heic", ".heif"):
+        register_heif()
     try:
         from PIL import Image
 
@@ -155,7 +158,7 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
         # for 24 MP, and COLMAP decodes it again): its 1/8-scale DCT decode serves both
         img, size = _jpeg_thumbnail(p) if not why and jpeg and orientation in (0, 1) else (None, (0, 0))
         if img is None and not why:
-            img, size = cv2.imread(str(p), cv2.IMREAD_COLOR), (0, 0)  # OpenCV applies EXIF orientation
+            img, size = read_bgr(p), (0, 0)  # EXIF orientation applied
         if img is None or img.size == 0:
             why = why or damaged_image(p)
             (truncated if why else bad).append(p.name)
@@ -195,7 +198,8 @@ def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> 
         found = f"{len(out)} readable image(s)" if out else "no readable image"
         need = f"; at least {min_images} needed" if out else ""  # none: the count needed says nothing more
         hint = f"; {subfolders_hint(folder, subs)}" if subs else ""
-        raise NoImagesError(f"{folder}: {found} (jpg, jpeg, png, tif, tiff, bmp, webp){need}{hint}")
+        formats = ", ".join(x.lstrip(".") for x in IMAGE_SUFFIXES)
+        raise NoImagesError(f"{folder}: {found} ({formats}){need}{hint}")
     if subs:
         log.warning("%s: the images in its subfolders are not read (%s); only the %d photo(s) in the folder "
                     "itself are used", folder, ", ".join(f"{s.name}/: {n}" for s, n in subs[:6])
@@ -252,6 +256,7 @@ def _png_copy(src: Path, dst: Path) -> tuple[int, int]:
     its (width, height)."""
     from PIL import Image, ImageOps
 
+    register_heif()
     try:
         with Image.open(src) as im:
             im = ImageOps.exif_transpose(im)
