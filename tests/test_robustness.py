@@ -490,6 +490,21 @@ def test_heic_photos_are_ingested_upright_as_png_copies_with_their_focal_length(
     assert len(out.views) == 3 and np.abs(first - rgb).mean() < 8
 
 
+def test_gps_of_heic_photos_is_read_for_metric_scale(tmp_path):
+    """An iPhone's HEIC photos carry its GPS fix: ``read_gps`` reads it as it does a JPEG's."""
+    from PIL import Image
+
+    from photorecon.io.images import register_heif
+    from photorecon.poses.scale import read_gps
+
+    assert register_heif()
+    exif = Image.Exif()
+    exif[0x8825] = {1: "N", 2: (48.0, 8.0, 24.0), 3: "E", 4: (11.0, 34.0, 12.0), 5: 0, 6: 520.5}
+    Image.new("RGB", (64, 48), (90, 120, 60)).save(tmp_path / "IMG_0001.HEIC", quality=90, exif=exif.tobytes())
+    lat, lon, alt = read_gps(tmp_path / "IMG_0001.HEIC")
+    assert lat == pytest.approx(48.14) and lon == pytest.approx(11.57) and alt == pytest.approx(520.5)
+
+
 @pytest.mark.slow
 def test_sfm_registers_webp_photos_among_pngs(ring16, tmp_path):
     """Half the photos WebP (lossless), half PNG: every photo registers, with poses as accurate as the PNGs'."""

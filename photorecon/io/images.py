@@ -1,6 +1,7 @@
 """Image and depth-map files: reading with clear errors, writing atomically, colour-mapped previews."""
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import cv2
@@ -8,12 +9,13 @@ import numpy as np
 
 from ..errors import InputDataError
 from .atomic import atomic_path
-from .paths import inside
+from .paths import HEIF_SUFFIXES, inside
 
 
+@functools.cache
 def register_heif() -> bool:
     """Let Pillow open HEIC/HEIF photos (``pillow-heif``; its opener applies the photo's rotation and resets
-    the EXIF orientation to 1). False when the package is missing."""
+    the EXIF orientation to 1), once per process. False when the package is missing."""
     try:
         import pillow_heif
     except ImportError:
@@ -22,16 +24,25 @@ def register_heif() -> bool:
     return True
 
 
+def open_photo(path: str | Path):
+    """``PIL.Image.open`` for a photo of any format photorecon reads (HEIC included: ``register_heif``). Raises
+    what ``Image.open`` raises."""
+    from PIL import Image
+
+    register_heif()
+    return Image.open(path)
+
+
 def read_bgr(path: str | Path) -> np.ndarray | None:
     """8-bit BGR (H, W, 3) with the EXIF orientation applied, by OpenCV, or by Pillow for what OpenCV cannot
     decode (HEIC); None when neither can."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is not None or Path(path).suffix.lower() not in (".heic", ".heif") or not register_heif():
+    if img is not None or Path(path).suffix.lower() not in HEIF_SUFFIXES:
         return img
-    from PIL import Image, ImageOps
+    from PIL import ImageOps
 
     try:
-        with Image.open(path) as im:
+        with open_photo(path) as im:
             return np.ascontiguousarray(np.asarray(ImageOps.exif_transpose(im).convert("RGB"))[..., ::-1])
     except Exception:  # damaged or not an image: the caller's error names the file
         return None
@@ -53,13 +64,11 @@ def damaged_image(path: str | Path) -> str | None:
     or None when it decodes to the end. A full decode with Pillow that reports truncation (OpenCV decodes a
     truncated JPEG without an error, grey from where the data stops); JPEGs are decoded at 1/8 scale, which
     still reads every byte of their data. Formats Pillow cannot open are not judged here (None)."""
-    from PIL import Image, ImageFile
+    from PIL import ImageFile
 
     path = Path(path)
-    if path.suffix.lower() in (".heic", ".heif"):
-        register_heif()
     try:
-        im = Image.open(path)
+        im = open_photo(path)
     except Exception:  # not a format Pillow reads (or not an image): the caller's decoder decides
         return None
     keep = ImageFile.LOAD_TRUNCATED_IMAGES
@@ -119,11 +128,11 @@ def read_alpha(path: str | Path) -> np.ndarray | None:
     if has is False:
         return None
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None and path.suffix.lower() in (".heic", ".heif") and register_heif():
-        from PIL import Image, ImageOps
+    if img is None and path.suffix.lower() in HEIF_SUFFIXES:
+        from PIL import ImageOps
 
         try:
-            with Image.open(path) as im:
+            with open_photo(path) as im:
                 if "A" not in im.getbands():
                     return None
                 return np.ascontiguousarray(np.asarray(ImageOps.exif_transpose(im).getchannel("A")))

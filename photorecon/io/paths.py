@@ -19,7 +19,8 @@ from pathlib import Path
 
 from ..errors import InputDataError
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".heic", ".heif")
+HEIF_SUFFIXES = (".heic", ".heif")  # decoded by Pillow with pillow-heif (io.images.open_photo), not by OpenCV
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp") + HEIF_SUFFIXES
 # photorecon names files after a view: NAME.normal.npy, NAME.EXT.png masks, and writes each through a temporary
 # ".NAME.XXXXXXXX.EXT" next to it (io/atomic.py): a photo's name may use the file system's limit less this
 NAME_MARGIN = 32

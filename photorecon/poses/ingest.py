@@ -20,13 +20,13 @@ import numpy as np
 from ..cameras import Intrinsics
 from ..errors import BadArgumentError, InputDataError, NoImagesError, SfMError
 from ..io.atomic import atomic_path
-from ..io.images import image_write_failed, read_bgr, register_heif
-from ..io.paths import IMAGE_SUFFIXES, check_distinct_views, check_name_length, inside
+from ..io.images import image_write_failed, open_photo, read_bgr
+from ..io.paths import HEIF_SUFFIXES, IMAGE_SUFFIXES, check_distinct_views, check_name_length, inside
 
 log = logging.getLogger("photorecon")
 
 # formats COLMAP's image reader cannot decode (pycolmap 4.x): ingested as PNG copies
-COLMAP_UNREADABLE = (".webp", ".heic", ".heif")
+COLMAP_UNREADABLE = (".webp",) + HEIF_SUFFIXES
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 FLAT_STD = 2.0  # grey levels: a photo whose pixels vary less than this is one flat colour (nothing to match)
 
@@ -102,12 +102,8 @@ def list_images(folder: str | Path) -> tuple[list[Path], list[Path]]:
 def _exif(path: Path) -> tuple[int, float | None]:
     """(EXIF orientation, focal length prior as a fraction of the long side) or (1, None). A HEIC photo's
     orientation is applied by its decoder (1 here)."""
-    if path.suffix.lower() in (".heic", ".heif"):
-        register_heif()
     try:
-        from PIL import Image
-
-        with Image.open(path) as im:
+        with open_photo(path) as im:
             exif = im.getexif()
             orientation = int(exif.get(0x0112, 1) or 1)
             sub = exif.get_ifd(0x8769) if hasattr(exif, "get_ifd") else {}
@@ -254,11 +250,10 @@ def _jpeg_thumbnail(path: Path) -> tuple[np.ndarray | None, tuple[int, int]]:
 def _png_copy(src: Path, dst: Path) -> tuple[int, int]:
     """``src`` as a PNG at ``dst``, EXIF orientation applied, alpha kept (a mask for SfM and depth); returns
     its (width, height)."""
-    from PIL import Image, ImageOps
+    from PIL import ImageOps
 
-    register_heif()
     try:
-        with Image.open(src) as im:
+        with open_photo(src) as im:
             im = ImageOps.exif_transpose(im)
             if im.mode not in ("1", "L", "LA", "I;16", "RGB", "RGBA"):
                 im = im.convert("RGBA" if "A" in im.getbands() else "RGB")

@@ -267,10 +267,10 @@ def geodetic_from_enu(enu, origin) -> np.ndarray:
 def read_gps(path: str | Path) -> tuple[float, float, float] | None:
     """(latitude, longitude, altitude) in degrees and metres from a photo's EXIF GPS tags, or None.
     A missing altitude reads as 0 m (then the fit's vertical is only as good as the photos' spread)."""
-    from PIL import Image
+    from ..io.images import open_photo
 
     try:
-        with Image.open(path) as im:
+        with open_photo(path) as im:
             gps = im.getexif().get_ifd(0x8825)
     except Exception:  # unreadable EXIF: treated as no GPS
         return None
