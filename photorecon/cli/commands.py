@@ -663,11 +663,6 @@ def _run_texture(args):
     mesh = Path(args.mesh) if args.mesh else Path(args.dataset) / "mesh.ply"
     with _dataset_output(ds, args.out, "textured", "texture", COMMAND_WRITES["texture"], args.overwrite,
                          (mesh,)) as dest:
-        if not args.mesh and not mesh.is_file():
-            from ..errors import InputDataError
-
-            raise InputDataError(f"{args.dataset}: no mesh.ply; expected the output folder of 'photorecon "
-                                 "reconstruct' or 'fuse', or give the mesh to texture with --mesh")
         info = texture_output(args.dataset, cfg, args.mesh, dest)
     print(f"texture: {info['faces']} faces, {info['charts']} charts from {info['views_used']} views, "
           f"{info['texels_per_pixel']:.2f} texels per photo pixel -> {info['folder']}/mesh.obj (+ mesh.mtl, "

@@ -409,7 +409,7 @@ def visibility(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray, vie
         dist = np.linalg.norm(d, axis=1)
         rays = np.concatenate([np.broadcast_to(v.center, (len(cand), 3)), d], axis=1).astype(np.float32)
         t = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-        tol = 2.0 * (vertices[cand] @ lvl.P[i, 2, :3] + lvl.P[i, 2, 3]) / lvl.focal[i]  # two pixel footprints
+        tol = 2.0 * depth[i, cand] / lvl.focal[i]  # two pixel footprints
         hidden = np.isfinite(t) & ((1.0 - t) * dist > tol)  # a miss: the ray slipped past its own vertex
         cos[i, cand[hidden]] = 0
         depth[i, cand[hidden]] = 0

@@ -41,7 +41,7 @@ import numpy as np
 import trimesh
 
 from ..cameras import View, project
-from ..errors import BadArgumentError, EmptyMeshError, TextureError
+from ..errors import BadArgumentError, EmptyMeshError, InputDataError, TextureError
 from ..io.images import sample_bilinear
 from ..layout import Layout
 from ..progress import bar
@@ -439,8 +439,11 @@ def texture_output(out: str | Path, cfg: TextureConfig | None = None, mesh_path:
     out = Path(out)
     ds = Dataset.open(out)
     if mesh is None:
-        mesh_path = Path(mesh_path) if mesh_path else Layout(out).mesh("ply")
-        mesh = load_mesh(mesh_path)
+        default = Layout(out).mesh("ply")
+        if not mesh_path and not default.is_file():
+            raise InputDataError(f"{out}: no mesh.ply; expected the output folder of 'photorecon reconstruct' or "
+                                 "'fuse', or give the mesh to texture with --mesh")
+        mesh = load_mesh(Path(mesh_path) if mesh_path else default)
     views = ds.views
 
     def images(k):
