@@ -1,5 +1,5 @@
 """The documentation stays true to the code: docs/cli.md is what the parser gives, the README shows the test
-command CI runs, and every relative link in README.md and docs/ points at a file that exists."""
+command CI runs, and every relative link in README.md and docs/ (docs/notes/ included) points at a file that exists."""
 from __future__ import annotations
 
 import importlib.util
@@ -61,7 +61,7 @@ def test_readme_shows_the_test_command_ci_runs():
 
 
 def _markdown_files():
-    return [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("*.md"))]
+    return [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 
 @pytest.mark.parametrize("page", _markdown_files(), ids=lambda p: p.relative_to(ROOT).as_posix())
