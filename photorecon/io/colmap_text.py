@@ -106,7 +106,8 @@ def write_colmap_text(model: SparseModel, folder: str | Path) -> Path:
 _IMAGE_LINE = re.compile(r"\s*(\S+(?:[ \t]+\S+){8})[ \t](.*)")
 
 
-def _data_lines(path: Path) -> list[str]:
+def _data_lines(path: Path) -> list[tuple[int, str]]:
+    """(line number, text) of the lines of ``path`` that are not comments."""
     if not path.is_file():
         raise InputDataError(f"{path}: missing; a COLMAP text model needs cameras.txt, images.txt and points3D.txt")
     try:
@@ -115,7 +116,24 @@ def _data_lines(path: Path) -> list[str]:
         raise InputDataError(f"{path}: not a COLMAP text file (byte {exc.object[exc.start]:#04x} at offset {exc.start} "
                              "is not UTF-8 text); expected cameras.txt, images.txt and points3D.txt as COLMAP "
                              "writes them") from None
-    return [ln.rstrip("\n") for ln in text.splitlines() if not ln.startswith("#")]
+    return [(n, ln.rstrip("\n")) for n, ln in enumerate(text.splitlines(), 1) if not ln.startswith("#")]
+
+
+def _numbers(tokens: list[str], what: str, kind=float) -> list:
+    """``tokens`` as numbers (``kind``); a token that is not one raises ``ValueError`` naming ``what``."""
+    try:
+        return [kind(x) for x in tokens]
+    except ValueError:
+        bad = next(x for x in tokens if not _is_number(x, kind))
+        raise ValueError(f"{what}: {bad!r} is not {'an integer' if kind is int else 'a number'}") from None
+
+
+def _is_number(x: str, kind) -> bool:
+    try:
+        kind(x)
+        return True
+    except ValueError:
+        return False
 
 
 def read_colmap_text(folder: str | Path) -> SparseModel:
@@ -123,55 +141,86 @@ def read_colmap_text(folder: str | Path) -> SparseModel:
     folder = Path(folder)
     cams: dict[int, Intrinsics] = {}
     path = folder / "cameras.txt"
-    for n, ln in enumerate(_data_lines(path), 1):
+    for n, ln in _data_lines(path):
         if not ln.strip():
             continue
         try:
             tok = ln.split()
-            cams[int(tok[0])] = intrinsics_from_colmap(tok[1], int(tok[2]), int(tok[3]), [float(x) for x in tok[4:]])
+            if len(tok) < 4:
+                raise ValueError("expected CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]")
+            cam_id = _numbers(tok[:1], "CAMERA_ID", int)[0]
+            if cam_id in cams:
+                raise ValueError(f"camera {cam_id} is listed twice; each CAMERA_ID must be unique")
+            w, h = _numbers(tok[2:4], "WIDTH, HEIGHT", int)
+            cams[cam_id] = intrinsics_from_colmap(tok[1], w, h, _numbers(tok[4:], "PARAMS"))
         except (ValueError, IndexError) as exc:
             raise InputDataError(f"{path}: cannot parse camera line {n!r}: {exc}") from None
     path = folder / "images.txt"
     lines = _data_lines(path)
     # images.txt alternates a pose line and a (possibly empty) points line
-    while lines and not lines[-1].strip() and len(lines) % 2:
+    while lines and not lines[-1][1].strip() and len(lines) % 2:
         lines.pop()
+    if len(lines) % 2:  # a pose line without its POINTS2D line: as if that line were empty
+        lines.append((lines[-1][0] + 1, ""))
     views, obs = [], {}
     for k in range(0, len(lines) - 1, 2):
-        ln, pts = lines[k], lines[k + 1]
+        (n, ln), (n_pts, pts) = lines[k], lines[k + 1]
         if not ln.strip():
             continue
+        where = f"{path} line {n}"
+        m = _IMAGE_LINE.fullmatch(ln)
+        if m is None or not m.group(2):
+            raise InputDataError(f"{where}: cannot parse image entry {ln!r}: expected IMAGE_ID, QW, QX, QY, QZ, TX, "
+                                 "TY, TZ, CAMERA_ID, NAME")
+        tok, name = m.group(1).split(), m.group(2)
         try:
-            m = _IMAGE_LINE.fullmatch(ln)
-            if m is None or not m.group(2):
-                raise ValueError("expected IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME")
-            tok, name = m.group(1).split(), m.group(2)
-            q = np.array([float(x) for x in tok[1:5]])
-            t = np.array([float(x) for x in tok[5:8]])
-            cam_id = int(tok[8])
-            intr = cams[cam_id]
-            T = opencv_from_colmap(q / np.linalg.norm(q), t)
+            image_id = _numbers(tok[:1], "IMAGE_ID", int)[0]
+            q = np.array(_numbers(tok[1:5], "QW QX QY QZ"))
+            t = np.array(_numbers(tok[5:8], "TX TY TZ"))
+            cam_id = _numbers(tok[8:9], "CAMERA_ID", int)[0]
             p = pts.split()
-            arr = np.array([float(x) for x in p], dtype=np.float64).reshape(-1, 3)
-        except (ValueError, IndexError, KeyError) as exc:
-            raise InputDataError(f"{path}: cannot parse image entry {ln!r}: {exc!r}") from None
+            if len(p) % 3:
+                raise ValueError(f"its POINTS2D line (line {n_pts}) holds {len(p)} numbers, not X Y POINT3D_ID "
+                                 "triples")
+            arr = np.array(_numbers(p, "POINTS2D"), dtype=np.float64).reshape(-1, 3)
+        except ValueError as exc:
+            raise InputDataError(f"{where}: cannot parse image entry {ln!r}: {exc}") from None
+        if not (np.isfinite(q).all() and np.isfinite(t).all()):
+            raise InputDataError(f"{where}: image {name}: QW QX QY QZ TX TY TZ must be finite, got "
+                                 f"{' '.join(tok[1:8])}")
+        if not np.any(q):
+            raise InputDataError(f"{path}: zero quaternion in line {n} (image {name}): QW QX QY QZ must be a "
+                                 "rotation, e.g. 1 0 0 0 for none")
+        if cam_id not in cams:
+            raise InputDataError(f"{where}: image {name} uses camera {cam_id}, which {folder / 'cameras.txt'} does "
+                                 f"not list (it lists {sorted(cams) or 'none'})")
+        if not np.isfinite(arr).all():
+            raise InputDataError(f"{path} line {n_pts}: image {name}'s POINTS2D holds a non-finite number")
+        T = opencv_from_colmap(q / np.linalg.norm(q), t)
         inside(None, name, f"{path} image {tok[0]}")
         stem = Path(name).stem
-        views.append(View(stem, intr, T, image_file=name, extra={"colmap_image_id": int(tok[0]),
-                                                 "colmap_camera_id": cam_id}))
+        views.append(View(stem, cams[cam_id], T, image_file=name, extra={"colmap_image_id": image_id,
+                                                                         "colmap_camera_id": cam_id}))
         obs[stem] = (opencv_from_colmap_pixels(arr[:, :2]), arr[:, 2].astype(np.int64))
     path = folder / "points3D.txt"
     ids, xyz, rgb, err = [], [], [], []
-    for ln in _data_lines(path):
+    for n, ln in _data_lines(path):
         tok = ln.split()
         if not tok:
             continue
         try:
-            ids.append(int(tok[0]))
-            xyz.append([float(x) for x in tok[1:4]])
-            rgb.append([int(x) for x in tok[4:7]])
-            err.append(float(tok[7]))
-        except (ValueError, IndexError) as exc:
-            raise InputDataError(f"{path}: cannot parse point line {ln[:60]!r}: {exc}") from None
+            if len(tok) < 8:
+                raise ValueError("expected POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[]")
+            ids.append(_numbers(tok[:1], "POINT3D_ID", int)[0])
+            xyz.append(_numbers(tok[1:4], "X Y Z"))
+            colour = _numbers(tok[4:7], "R G B", int)
+            if not all(0 <= c <= 255 for c in colour):
+                raise ValueError(f"R G B must be 0..255, got {' '.join(tok[4:7])}")
+            rgb.append(colour)
+            err.append(_numbers(tok[7:8], "ERROR")[0])
+            if not np.isfinite(xyz[-1]).all():
+                raise ValueError(f"X Y Z must be finite, got {' '.join(tok[1:4])}")
+        except ValueError as exc:
+            raise InputDataError(f"{path}: cannot parse point line {n} {ln[:60]!r}: {exc}") from None
     return SparseModel(views, np.array(xyz, float).reshape(-1, 3), np.array(rgb, np.uint8).reshape(-1, 3),
                        np.array(ids, np.int64), np.array(err, float), obs)

@@ -25,9 +25,12 @@ MIN_DEPTH_SIDE = 64  # a depth map at a working resolution: at least this long s
 
 
 def read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
-    """``_read_model``, with two images that would be one view (``view_000.png``, ``view_000.jpg``) refused
-    (``InputDataError`` naming both)."""
+    """``_read_model``, with a model without cameras and two images that would be one view (``view_000.png``,
+    ``view_000.jpg``) refused (``InputDataError`` naming the file or both images)."""
     model = _read_model(path, neus_world)
+    if not model.views:  # every reader's empty file (a COLMAP model without images, ...): nothing to use
+        raise InputDataError(f"{path}: the camera file has no cameras; it must list one camera (pose and "
+                             "intrinsics) per image")
     check_distinct_views(((v.name, v.image_file or v.name) for v in model.views), str(path))
     return model
 

@@ -106,11 +106,18 @@ def read_neus(path: str | Path, world: str = "normalized") -> list[View]:
     path = _neus_file(Path(path))
     try:
         with np.load(path, allow_pickle=False) as z:
-            data = {k: np.asarray(z[k], float) for k in z.files}
+            raw = {k: z[k] for k in z.files}
     except FileNotFoundError:
         raise InputDataError(f"{path}: no such file") from None
-    except Exception as exc:  # zip / pickle / dtype errors: all mean "not a camera npz"
+    except Exception as exc:  # zip / pickle errors: all mean "not a camera npz"
         raise InputDataError(f"{path}: not a readable .npz ({exc})") from None
+    data = {}
+    for k, a in raw.items():
+        if k.startswith(("world_mat_", "scale_mat_")) and not (np.issubdtype(a.dtype, np.number)
+                                                                and not np.issubdtype(a.dtype, np.complexfloating)):
+            raise InputDataError(f"{path}: {k} holds {a.dtype} values; expected a matrix of real numbers")
+        if np.issubdtype(a.dtype, np.number) and not np.issubdtype(a.dtype, np.complexfloating):
+            data[k] = np.asarray(a, float)
     if "world_mat_0" not in data:
         raise InputDataError(f"{path}: no 'world_mat_0'; an IDR/NeuS camera file holds world_mat_i (and scale_mat_i) "
                              f"for i = 0..N-1, found keys {sorted(data)[:6]}")
@@ -132,6 +139,10 @@ def read_neus(path: str | Path, world: str = "normalized") -> list[View]:
         if W.shape not in ((3, 4), (4, 4)) or S.shape != (4, 4):
             raise InputDataError(f"{path}: world_mat_{i} must be 3x4 or 4x4 and scale_mat_{i} 4x4, got "
                                  f"{W.shape} and {S.shape}")
+        for name, A in ((f"world_mat_{i}", W), (f"scale_mat_{i}", S)):
+            if not np.isfinite(A).all():
+                raise InputDataError(f"{path}: {name} holds {int((~np.isfinite(A)).sum())} NaN or infinite "
+                                     "entries; every camera needs a finite matrix")
         P = (W[:3] @ S) if world == "normalized" else W[:3]
         K, T = decompose_projection(P, f"{path} world_mat_{i}")
         w, h = image_size(img, f"{path} camera {i}")
@@ -209,9 +220,13 @@ def read_llff(path: str | Path) -> list[View]:
         raise InputDataError(f"{path}: no such file") from None
     except Exception as exc:
         raise InputDataError(f"{path}: not a readable .npy ({exc})") from None
-    if arr.ndim != 2 or arr.shape[1] != 17 or not np.issubdtype(arr.dtype, np.number):
+    if arr.ndim != 2 or arr.shape[1] != 17:
         raise InputDataError(f"{path}: expected an N x 17 array (3x5 pose-and-hwf matrix + near, far per image), "
                              f"got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+        raise InputDataError(f"{path}: expected an N x 17 array of real numbers, got {arr.dtype} values")
+    if len(arr) == 0:
+        raise InputDataError(f"{path}: holds no camera (0 rows); expected one row per image in images/")
     arr = arr.astype(float)
     folder = path.parent / "images"
     images = sorted_images(folder)
@@ -221,6 +236,10 @@ def read_llff(path: str | Path) -> list[View]:
         where = f"{path} row {i}"
         M = row[:15].reshape(3, 5)
         H, W, f = M[:, 4]
+        if not np.isfinite(row).all():
+            names = [f"pose[{r},{c}]" for r in range(3) for c in range(5)] + ["near", "far"]
+            bad = [n for n, x in zip(names, row) if not np.isfinite(x)]
+            raise InputDataError(f"{where}: {', '.join(bad)} not finite; every row needs 17 finite numbers")
         if not (np.isfinite(row).all() and H >= 1 and W >= 1 and f > 0 and H == round(H) and W == round(W)):
             raise InputDataError(f"{where}: expected finite values, integer H, W >= 1 and focal > 0, got "
                                  f"H={H:g} W={W:g} focal={f:g}")

@@ -34,7 +34,7 @@ import numpy as np
 from ..cameras import Intrinsics, View
 from ..conventions import (NERF_WORLDS, colmap_from_opencv_pixels, nerf_from_opencv, opencv_from_colmap_pixels,
                            opencv_from_nerf)
-from ..errors import InputDataError
+from ..errors import BadArgumentError, InputDataError
 from .atomic import atomic_write_json
 from .paths import inside
 
@@ -159,10 +159,56 @@ def _lens(src: dict, where: str) -> tuple[str, dict]:
     return "PINHOLE", {}
 
 
+def _number(src: dict, key: str, where: str, kind=float):
+    """``src[key]`` as a number (``kind``); anything else raises ``InputDataError`` naming the key."""
+    value = src[key]
+    try:
+        if isinstance(value, (bool, list, dict)) or value is None:
+            raise TypeError
+        return kind(float(value)) if kind is int else kind(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputDataError(f"{where}: {key}: expected a number, got {value!r:.60}") from None
+
+
+def _file_world(path: Path, data: dict) -> str:
+    """The world orientation a transforms.json records: ``photorecon_world``, else the one nerfstudio's
+    ``applied_transform`` stands for, else "none"."""
+    world = data.get("photorecon_world")
+    if world is not None:
+        if not isinstance(world, str) or world not in NERF_WORLDS:
+            raise InputDataError(f"{path}: photorecon_world {world!r} is not one of {sorted(NERF_WORLDS)}")
+        return world
+    if "applied_transform" not in data:
+        return "none"
+    try:
+        A = np.asarray(data["applied_transform"], float)
+    except (TypeError, ValueError):
+        A = None
+    if A is None or A.shape not in ((3, 4), (4, 4)):
+        raise InputDataError(f"{path}: applied_transform: expected a 3x4 matrix of numbers, got "
+                             f"{data['applied_transform']!r:.80}")
+    world = next((k for k, M in NERF_WORLDS.items() if np.allclose(M[:3], A[:3])), None)
+    if world is None:
+        raise InputDataError(f"{path}: applied_transform {A.tolist()} is not a known orientation")
+    return world
+
+
+def _frame_path(fr: dict, key: str, where: str) -> str:
+    value = fr[key]
+    if not isinstance(value, str) or not value:
+        raise InputDataError(f"{where}: {key}: expected a file path (text, relative to the file's folder), got "
+                             f"{value!r:.60}")
+    return value
+
+
 def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
     """Views from a transforms.json. ``world`` defaults to the file's ``photorecon_world``, else nerfstudio's
-    ``applied_transform`` if present, else "none". ``View.image_path`` is the confined absolute image path."""
-    path = Path(path)
+    ``applied_transform`` if present, else "none". ``View.image_path`` is the confined absolute image path.
+    A file without frames raises ``InputDataError``."""
+    return _read_frames(Path(path), world, allow_empty=False)
+
+
+def _read_frames(path: Path, world: str | None, allow_empty: bool) -> list[View]:
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
@@ -171,23 +217,39 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
         raise InputDataError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
         raise InputDataError(f"{path}: expected an object with a 'frames' list")
+    if not data["frames"] and not allow_empty:
+        raise InputDataError(f"{path}: the camera file has no frames (its 'frames' list is empty); list one frame "
+                             "per image, each with file_path and transform_matrix")
     if world is None:
-        world = data.get("photorecon_world")
-        if world is None:
-            world = "none"
-            if "applied_transform" in data:
-                A = np.asarray(data["applied_transform"], float)
-                world = next((k for k, M in NERF_WORLDS.items() if np.allclose(M[:3], A)), None)
-                if world is None:
-                    raise InputDataError(f"{path}: applied_transform {A.tolist()} is not a known orientation")
+        world = _file_world(path, data)
+    elif world not in NERF_WORLDS:
+        raise BadArgumentError(f"NeRF world orientation: expected one of {sorted(NERF_WORLDS)}, got {world!r}")
     root = path.parent.absolute()
     views = []
     for i, fr in enumerate(data["frames"]):
         where = f"{path} frame {i}"
+        if not isinstance(fr, dict):
+            raise InputDataError(f"{where}: expected an object with file_path and transform_matrix, got {fr!r:.60}")
+        for key, what in (("file_path", "the image file, relative to the file's folder"),
+                          ("transform_matrix", "a 4x4 camera-to-world matrix")):
+            if key not in fr:
+                raise InputDataError(f"{path}: frame {i} has no {key} ({what})")
+        file_path = _frame_path(fr, "file_path", where)
         try:
-            src = {**{k: data[k] for k in _INTR_KEYS if k in data}, **{k: fr[k] for k in _INTR_KEYS if k in fr}}
+            M = np.asarray(fr["transform_matrix"], float)
+        except (TypeError, ValueError):
+            raise InputDataError(f"{where}: transform_matrix: expected a 4x4 matrix of numbers (camera-to-world), "
+                                 f"got {fr['transform_matrix']!r:.80}") from None
+        src = {**{k: data[k] for k in _INTR_KEYS if k in data}, **{k: fr[k] for k in _INTR_KEYS if k in fr}}
+        for k in ("fl_x", "fl_y", "cx", "cy", *_DIST, "camera_angle_x", "camera_angle_y"):
+            if k in src:
+                src[k] = _number(src, k, where)
+        for k in ("w", "h"):
+            if k in src:
+                src[k] = _number(src, k, where, int)
+        try:
             if "fl_x" not in src and "camera_angle_x" in src:
-                src = _blender_intrinsics(src, _frame_image(root, str(fr["file_path"]), where), where)
+                src = _blender_intrinsics(src, _frame_image(root, file_path, where), where)
             for k in ("fl_x", "cx", "cy", "w", "h"):
                 if k not in src:
                     raise InputDataError(f"{where}: missing intrinsics key {k!r} (give fl_x, cx, cy, w, h or "
@@ -196,12 +258,11 @@ def read_transforms(path: str | Path, world: str | None = None) -> list[View]:
             intr = Intrinsics(int(src["w"]), int(src["h"]), float(src["fl_x"]), float(src.get("fl_y", src["fl_x"])),
                               float(opencv_from_colmap_pixels(float(src["cx"]))),
                               float(opencv_from_colmap_pixels(float(src["cy"]))), model=model, **dist)
-            T = opencv_from_nerf(np.asarray(fr["transform_matrix"], float), world)
-            file_path = str(fr["file_path"])
+            T = opencv_from_nerf(M, world)
         except (KeyError, TypeError, ValueError) as exc:
             raise InputDataError(f"{where}: {exc}") from None
         img = _frame_image(root, file_path, where)
-        files = {key: str(inside(root, str(fr[key]), where)) if key in fr else None
+        files = {key: str(inside(root, _frame_path(fr, key, where), where)) if key in fr else None
                  for key in ("depth_file_path", "mask_path")}
         views.append(View(img.stem, intr, T, image_path=str(img), image_file=img.name,
                           depth_file=files["depth_file_path"], mask_file=files["mask_path"]))
@@ -221,11 +282,13 @@ def read_blender(path: str | Path) -> list[View]:
         raise InputDataError(f"{path}: no transforms_train.json, transforms_val.json or transforms_test.json")
     views = []
     for split, f in files:
-        for v in read_transforms(f):
+        for v in _read_frames(f, None, allow_empty=len(files) > 1):  # an empty split beside others is allowed
             if len(files) > 1:
                 rel = Path(v.image_path).relative_to(path.absolute()).as_posix()
                 v = dataclasses.replace(v, name=f"{split}_{v.name}", image_file=rel)
             views.append(v)
+    if not views:
+        raise InputDataError(f"{path}: the camera files {', '.join(f.name for _, f in files)} have no frames")
     return views
 
 

@@ -56,8 +56,10 @@ def read_strecha_camera(path: str | Path) -> View:
     R = np.array(rows[4:7])  # world_from_cam rotation
     C = np.array(rows[7])
     w, h = rows[8]
-    if not np.all(np.isfinite(np.concatenate([K.ravel(), dist, R.ravel(), C]))):
-        raise InputDataError(f"{path}: non-finite number in the camera")
+    bad = [name for name, a in (("K", K), ("distortion", dist), ("R", R), ("C", C), ("size", np.array(rows[8])))
+           if not np.all(np.isfinite(a))]
+    if bad:
+        raise InputDataError(f"{path}: non-finite number (NaN or inf) in {', '.join(bad)}; every entry must be finite")
     if w != int(w) or h != int(h) or w <= 0 or h <= 0:
         raise InputDataError(f"{path}: expected a positive integer image size 'width height', got {w:g} {h:g}")
     if np.any(dist != 0):
