@@ -72,6 +72,18 @@ class ReconstructConfig:
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        # options that contradict each other: refused when built, before any stage runs
+        if self.depth_model and self.depth != "mvs":
+            raise BadArgumentError(f"--depth-model {self.depth_model} and --depth {self.depth} both give the depth "
+                                   "maps; give one of them")
+        if self.depth_preset is not None:
+            if not self.depth_model:
+                raise BadArgumentError(f"--depth-preset {self.depth_preset} needs --depth-model FILE.onnx")
+            from .depth.mono import PRESETS
+
+            if self.depth_preset not in PRESETS:
+                raise BadArgumentError(f"--depth-preset: expected one of {', '.join(sorted(PRESETS))}, got "
+                                       f"{self.depth_preset!r}")
 
 
 @dataclass
@@ -90,6 +102,10 @@ class StageConfigs:
     def __post_init__(self):
         for f in fields(self):  # each stage's config of its own class (each checked its fields when built)
             expect_config(getattr(self, f.name), f.default_factory().__class__, f"StageConfigs.{f.name}")
+        given = [f"--{k}" for k in ("intrinsics", "fx", "fy", "cx", "cy") if getattr(self.sfm, k) is not None]
+        if self.run.poses and given:  # the given cameras carry their intrinsics; SfM's would be ignored
+            raise BadArgumentError(f"--poses {self.run.poses} gives the cameras with their intrinsics; "
+                                   f"{'/'.join(given)} (for SfM) would be ignored: give one or the other")
 
 
 @dataclass

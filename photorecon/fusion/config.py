@@ -8,6 +8,7 @@ from typing import Literal
 import numpy as np
 
 from ..cameras import View
+from ..errors import BadArgumentError
 from ..fields import check_config
 
 
@@ -45,6 +46,8 @@ class FusionConfig:
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        if self.watertight and self.mesher != "poisson":  # refused when built, before any stage runs
+            raise BadArgumentError(f"--watertight needs --mesher poisson (got --mesher {self.mesher})")
 
 
 @dataclass

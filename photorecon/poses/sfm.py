@@ -89,6 +89,12 @@ class SfMConfig:
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        flags = [f"--{k}" for k in ("fx", "fy", "cx", "cy") if getattr(self, k) is not None]
+        if self.intrinsics and flags:  # refused when built, before any stage runs
+            raise BadArgumentError(f"--intrinsics {self.intrinsics} and {'/'.join(flags)} both give the "
+                                   "intrinsics; give one of them")
+        if flags and self.fx is None:
+            raise BadArgumentError("intrinsics flags: --fx is required (with optional --fy, --cx, --cy)")
 
 
 def _quiet(pycolmap) -> None:
