@@ -136,3 +136,86 @@ def test_request_check(host, origin, refused):
     assert (viewer_request_refusal(h, "127.0.0.1") is not None) == refused
     two = Headers([("Host", "127.0.0.1:8080"), ("Host", "evil.example")])
     assert viewer_request_refusal(two, "127.0.0.1") is not None
+
+
+# --- report.html and the viewer page: names shown as text, never as markup ------------------------------------------
+NASTY = "q</script><script>alert(1)</script>\"x'<!--.png"  # a photo in subfolders 'q<' and 'script><script>alert(1)<'
+
+
+class _Page:
+    """What an HTML parser (the same tokenizer rules as a browser's) makes of a page: its tags and its text."""
+
+    def __init__(self, text: str):
+        from html.parser import HTMLParser
+
+        self.tags, self.attrs, self.text, self.scripts = [], [], [], []
+        page = self
+
+        class P(HTMLParser):
+            def handle_starttag(self, tag, attrs):
+                page.tags.append(tag)
+                page.attrs += attrs
+
+            def handle_data(self, data):
+                (page.scripts if page.tags and page.tags[-1] == "script" else page.text).append(data)
+
+        p = P(convert_charrefs=True)
+        p.feed(text)
+        p.close()
+        self.all_text = "".join(self.text)
+
+
+def test_report_html_shows_names_with_markup_as_text(tmp_path):
+    """Photo names holding '</script>', '<script>', quotes and '<!--' (in the unregistered list, the warnings,
+    the parameters, a depth map's file name, the cameras) neither end the page's scripts nor add an element or
+    an attribute: the page has exactly the viewer's three scripts and shows each name as text."""
+    from photorecon.cameras import Intrinsics, View, look_at, ring_positions
+    from photorecon.io.colmap_text import SparseModel, write_colmap_text
+    from photorecon.io.images import write_image
+    from photorecon.mesh import export
+    from photorecon.report import write_html_report
+
+    out = tmp_path / "out"
+    out.mkdir()
+    export(trimesh.creation.icosphere(2), out / "mesh.ply")
+    names = [NASTY, "plain.png"]
+    views = [View(n, Intrinsics.from_fov(64, 48, 50), look_at(p, [0, 0, 0]), image_file=n)
+             for n, p in zip(names, ring_positions(2, 4.0, 20))]
+    write_colmap_text(SparseModel(views), out / "sparse" / "0")
+    depth_name = "d\"'<img src=x onerror=alert(1)>.png"
+    (out / "depth").mkdir()
+    write_image(out / "depth" / depth_name, np.full((8, 8, 3), 128, np.uint8))
+    report = {"photorecon": "test", "input": f"/photos/{NASTY}", "stages": {"poses": {"seconds": 1.0}},
+              "poses": {"registered": 1, "unregistered": [NASTY]}, "mesh": {"vertices": 1, "faces": 2},
+              "warnings": [f"view {NASTY}: few points"], "parameters": {"run": {"masks": NASTY}}}
+    text = write_html_report(out, report).read_text()
+    page = _Page(text)
+    assert page.tags.count("script") == 3 and text.lower().count("</script") == 3  # the viewer's own
+    assert page.tags.count("img") == 1  # the depth map (no preview.png here); no element from a name
+    assert not any(k.startswith("on") for k, _ in page.attrs)
+    assert page.all_text.count(NASTY) >= 3  # input, unregistered, warning (and the parameters, JSON-escaped)
+    assert ("alt", depth_name) in page.attrs
+    assert "No 3D view" not in page.all_text  # the viewer's data and script are whole
+
+
+def test_viewer_data_holds_no_markup(tmp_path):
+    """The viewer's embedded JSON has no '<' at all (no '</script>' nor '<!--' that would end or break its
+    element) and still decodes to the same data; the standalone page's title shows a folder name as text."""
+    import json
+    import re
+
+    from photorecon.cli import main
+    from photorecon.mesh import export
+    from photorecon.report import viewer_html, viewer_payload
+
+    payload = viewer_payload(trimesh.creation.icosphere(1))
+    payload["meta"]["note"] = NASTY + " & <b>"
+    body = viewer_html(payload)
+    meta = re.search(r'id="prv-meta">(.*?)</script>', body, re.S).group(1)
+    assert "<" not in meta and ">" not in meta and json.loads(meta) == payload["meta"]
+    folder = tmp_path / "r\"'<script>alert(1)<!--"
+    folder.mkdir()
+    export(trimesh.creation.icosphere(1), folder / "mesh.ply")
+    assert main(["view", str(folder), "--html", str(tmp_path / "v.html")]) == 0
+    page = _Page((tmp_path / "v.html").read_text())
+    assert page.tags.count("script") == 3 and f"photorecon: {folder}" in page.all_text

@@ -222,7 +222,9 @@ def result_cameras(folder: Path) -> list[View]:
 def viewer_html(payload: dict, full_window: bool = False) -> str:
     """A ``<div>`` with the canvas, its buttons, the embedded data and the viewer script. ``full_window``:
     the viewer fills the page (the standalone page); otherwise ``#viewer`` in the URL does that."""
-    meta = json.dumps(payload["meta"], separators=(",", ":")).replace("</", "<\\/")
+    # inside <script>: no '<' at all (a name holding '</script>' or '<!--' would end or break the element)
+    meta = (json.dumps(payload["meta"], separators=(",", ":"))
+            .replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
     m = payload["meta"]
     shown = (f"{m['faces']:,} of {m['faces_full']:,} faces" if m["faces_full"] > m["faces"] else f"{m['faces']:,} faces")
     return (f'<div id="viewer" class="prv{" prv-page" if full_window else ""}">'
