@@ -5,8 +5,8 @@ later processes load them in well under a second instead of compiling them (tens
 The kernels run through the same code paths as a reconstruction (PatchMatch MVS with its geometric filter and
 the planar prior on a tiny synthetic scene, then weighted TSDF fusion of its depth maps and the photometric
 refinement of that mesh; the hole filling's kernels on a hexagon), so they are compiled
-for the argument types a real run passes; the two PatchMatch kernels only the tests and diagnostics call
-(``ncc_at``, ``photometric_cost``) run on arrays of the same types. ``kernels()`` lists every compiled function
+for the argument types a real run passes; the PatchMatch kernel only the tests call (``ncc_at``) runs on arrays
+of the same types. ``kernels()`` lists every compiled function
 of the package: ``tests/test_warmup.py`` checks that ``warm_up`` reaches each one.
 """
 from __future__ import annotations
@@ -54,22 +54,14 @@ def entry_kernels(found: dict[str, object] | None = None) -> dict[str, object]:
 
 
 def _tiny_pm_calls() -> None:
-    """``ncc_at`` and ``photometric_cost`` (tests, diagnostics) with the argument types of their callers."""
-    from .depth import _pm_kernels as K
+    """``ncc_at`` (the tests' entry to the NCC) with the argument types of its callers."""
+    from .depth.methods.patchmatch import kernels as K
 
     rng = np.random.default_rng(0)
     ref = rng.random((12, 14)).astype(np.float32)
-    srcs = rng.random((2, 12, 14)).astype(np.float32)
+    src = rng.random((12, 14)).astype(np.float32)
     sdy, sdx, sspat = K.window_samples(5, 2, 3.0)
-    K.ncc_at(ref, srcs[0], 6, 6, np.eye(3).ravel(), sdy, sdx, sspat, 0.1, 1e-5)
-    A = np.repeat(np.eye(3)[None], 2, axis=0)
-    b = np.zeros((2, 3))
-    Kinv = np.linalg.inv(np.array([[20.0, 0, 7], [0, 20.0, 6], [0, 0, 1]]))
-    depth = np.ones((12, 14), np.float32)
-    normal = np.zeros((12, 14, 3), np.float32)
-    normal[..., 2] = -1
-    out = np.empty((2, 12, 14), np.float32)
-    K.photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, 0.1, 1e-5, depth, normal, out)
+    K.ncc_at(ref, src, 6, 6, np.eye(3).ravel(), sdy, sdx, sspat, 0.1, 1e-5)
 
 
 def _tiny_hole_calls() -> None:

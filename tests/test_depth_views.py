@@ -120,7 +120,7 @@ def _coarse_maps(renderer, views, seed: int = 0) -> dict:
     """Per view, a coarse depth map as PatchMatch's first round gives it (a quarter of the resolution): the
     rendered z-depth with 0.3% noise and 3% of the pixels wrong (a random depth), the normals in the camera
     frame, matching cost 0.2 on the surface."""
-    from photorecon.depth.patchmatch import level_view
+    from photorecon.depth.methods.patchmatch.solver import level_view
 
     rng = np.random.default_rng(seed)
     maps = {}

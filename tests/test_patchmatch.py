@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from photorecon.depth import _pm_kernels as K
+from photorecon.depth.methods.patchmatch import kernels as K
 from photorecon.depth.mvs import MVSConfig, _gray, depth_range, run_mvs, select_sources
-from photorecon.depth.patchmatch import PatchMatchParams, ncc_cost_reference, patchmatch_view
+from photorecon.depth.methods.patchmatch.solver import PatchMatchParams, ncc_cost_reference, patchmatch_view
 from photorecon.errors import NoDepthError
 from photorecon.io.colmap_text import SparseModel
 from photorecon.io.dataset import Dataset
@@ -71,7 +71,7 @@ def test_checker_window_is_every_other_sample_of_the_grid():
     assert K._window_row(dy, dx) == 6 and K._window_row(cy, cx) == 3
     # by default the checkerboard is used at the full-resolution level of a 1600x1067 photo, not at half of it
     from photorecon.cameras import Intrinsics, View
-    from photorecon.depth.patchmatch import level_view
+    from photorecon.depth.methods.patchmatch.solver import level_view
 
     params = PatchMatchParams(MVSConfig())
     v = View("v", Intrinsics(1600, 1067, 1400.0, 1400.0, 799.5, 533.0), np.eye(4))
@@ -286,7 +286,7 @@ def test_extra_geometric_round_at_the_chosen_level():
     """ACMM's extra geometric round runs right after its level's own round (full resolution, last, by default), or
     is that level's one round (--no-pm-final-own-round); with --pm-final-level 1 it runs at half resolution, and
     it is the round that leaves the pixels other views confirm as they are."""
-    from photorecon.depth.patchmatch import _rounds, pm_rounds
+    from photorecon.depth.methods.patchmatch.solver import _rounds, pm_rounds
 
     assert _rounds(MVSConfig(pm_final_own_round=False)) == ([(2, False, 5), (1, True, 1), (0, True, 1)], 2)
     assert _rounds(MVSConfig(pm_final_own_round=True)) == ([(2, False, 5), (1, True, 1), (0, True, 1), (0, True, 1)], 3)
@@ -302,7 +302,7 @@ def test_extra_geometric_round_at_the_chosen_level():
 def test_pruned_pixels_are_those_far_from_any_matched_surface():
     """After a round, the next one computes only the pixels within 2 (previous-round) pixels of a depth matched
     at a cost at most --pm-prune-cost, upsampled to the new resolution."""
-    from photorecon.depth.patchmatch import level_view, pruned_active
+    from photorecon.depth.methods.patchmatch.solver import level_view, pruned_active
 
     from photorecon.cameras import Intrinsics, View
 
@@ -326,7 +326,7 @@ def test_pruning_skips_the_background_and_keeps_the_object(knot_small, tmp_path,
     pixels computed), and the object's depths are as close to the truth as without."""
     import shutil
 
-    from photorecon.depth import patchmatch
+    from photorecon.depth.methods.patchmatch import solver as patchmatch
 
     root = tmp_path / "nomask"
     for sub in ("images", "sparse", "depth"):

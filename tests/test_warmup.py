@@ -15,10 +15,11 @@ def test_kernel_listing_finds_entries_and_helpers():
     found = kernels()
     entries = entry_kernels(found)
     # kernels Python calls, and helpers only other kernels call (compiled with them)
-    for name in ("photorecon.depth._pm_kernels.pm_pass", "photorecon.depth._pm_kernels.consistency_source",
+    for name in ("photorecon.depth.methods.patchmatch.kernels.pm_pass", "photorecon.depth._filter_kernel.consistency_source",
                  "photorecon.fusion.tsdf._tsdf_weighted_kernel"):
         assert name in entries
-    for name in ("photorecon.depth._pm_kernels._ncc", "photorecon.depth._pm_kernels._homography"):
+    for name in ("photorecon.depth.methods.patchmatch.kernels._ncc",
+                 "photorecon.depth.methods.patchmatch.kernels._homography"):
         assert name in found and name not in entries
     # every kernel is cached on disk (cache=True): otherwise warming it up would not outlive the process
     uncached = [k for k, d in found.items() if type(d._cache).__name__ == "NullCache"]

@@ -19,7 +19,7 @@ import time
 import numpy as np
 from numba import njit
 
-from photorecon.depth import _pm_kernels as k
+from photorecon.depth.methods.patchmatch import kernels as k
 
 
 @njit(cache=True, fastmath=True)

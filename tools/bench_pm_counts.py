@@ -22,7 +22,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 
 from photorecon import progress  # noqa: E402
-from photorecon.depth import mvs, patchmatch  # noqa: E402
+from photorecon.depth import mvs  # noqa: E402
+from photorecon.depth.methods.patchmatch import solver as patchmatch  # noqa: E402
 from photorecon.depth.mvs import MVSConfig  # noqa: E402
 from photorecon.io.dataset import Dataset  # noqa: E402
 

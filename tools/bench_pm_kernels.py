@@ -4,7 +4,7 @@ inputs: a 9-view blob ring (synthesized once into $TMPDIR/pm_bench_scene), refer
 the true depth +1% noise as hypotheses, the sources' true depth for the geometric term; with/without the
 geometric term and refinement, and the fraction of pixels within 1% after the pass.
 
-    cp photorecon/depth/_pm_kernels.py /tmp/k/k0.py; (edit a copy as /tmp/k/k1.py)
+    cp photorecon/depth/methods/patchmatch/kernels.py /tmp/k/k0.py; (edit a copy as /tmp/k/k1.py)
     python tools/bench_pm_kernels.py 800 534 /tmp/k/k0.py /tmp/k/k1.py
 """
 import sys, time, importlib.util
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from photorecon.io.dataset import Dataset
 from photorecon.synthetic import SynthConfig, synthesize
-from photorecon.depth import patchmatch as pmm
+from photorecon.depth.methods.patchmatch import solver as pmm
 from photorecon.depth.mvs import MVSConfig
 from photorecon.io.images import *  # noqa
 import cv2

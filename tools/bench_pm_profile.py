@@ -20,7 +20,8 @@ from collections import defaultdict
 from pathlib import Path
 
 from photorecon import progress
-from photorecon.depth import _pm_kernels, mvs, patchmatch
+from photorecon.depth import _filter_kernel, mvs  # noqa: E402
+from photorecon.depth.methods.patchmatch import kernels as _pm_kernels, solver as patchmatch  # noqa: E402
 from photorecon.io.dataset import Dataset
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -51,7 +52,7 @@ def instrument() -> None:
     k.initial_cost = _timed(lambda *a: f"{STATE['round']} initial_cost", k.initial_cost)
     k.init_random = _timed(lambda *a: f"{STATE['round']} init_random", k.init_random)
     k.upsample_planes = _timed(lambda *a: f"{STATE['round']} upsample_planes", k.upsample_planes)
-    k.consistency_source = _timed(lambda *a: "filter: consistency_source", k.consistency_source)
+    _filter_kernel.consistency_source = _timed(lambda *a: "filter: consistency_source", _filter_kernel.consistency_source)
     orig_round = patchmatch.pm_view_round
 
     def pm_view_round(job, r, *a, **kw):

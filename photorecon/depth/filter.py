@@ -97,8 +97,8 @@ def _consistency_count_any(r: DepthResult, sources: dict[str, DepthResult], cfg:
 
 
 def _consistency_count_pinhole(r: DepthResult, sources: dict[str, DepthResult], cfg: MVSConfig) -> tuple[np.ndarray, float, int]:
-    """``consistency_count`` for cameras without distortion, compiled (``_pm_kernels.consistency_source``)."""
-    from . import _pm_kernels as k
+    """``consistency_count`` for cameras without distortion, compiled (``_filter_kernel.consistency_source``)."""
+    from . import _filter_kernel as k
 
     d = np.ascontiguousarray(r.depth, np.float32)
     cnt = np.zeros(d.shape, np.int32)

@@ -261,7 +261,7 @@ def _raw_result(ctx: _MVSContext, name: str, normal: bool = False, confidence: b
 
 
 def _pm_jobs(ctx: _MVSContext) -> dict:
-    from .patchmatch import PMJob
+    from .methods.patchmatch.solver import PMJob
 
     return {n: PMJob(wv, srcs, rng[0], rng[1], seeds) for n, (wv, srcs, rng, seeds) in ctx.plan.items()}
 
@@ -281,7 +281,7 @@ def _mvs_task(ctx: _MVSContext, kind: str, name: str, r: int = 0) -> dict:
         _finish_depth(ctx, name, depth, conf, None)
         return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0}
     if kind == "pm":
-        from .patchmatch import PatchMatchParams, pm_rounds, pm_view_round
+        from .methods.patchmatch.solver import PatchMatchParams, pm_rounds, pm_view_round
 
         last = r == len(pm_rounds(cfg)) - 1
         done = _raw_path(ctx, name, "depth") if last else ctx.work / f"r{r}" / f"{name}.depth.npy"
@@ -346,7 +346,7 @@ def mvs_tasks(ctx: _MVSContext) -> list[Task]:
         last = {n: f"sweep:{n}" for n in names}
         tasks += [Task(last[n], ("sweep", n)) for n in names]
     else:
-        from .patchmatch import pm_rounds, round_dependencies
+        from .methods.patchmatch.solver import pm_rounds, round_dependencies
 
         jobs = _pm_jobs(ctx)
         n_rounds = len(pm_rounds(cfg))
@@ -442,7 +442,7 @@ def _log_choice(choice, cfg: MVSConfig) -> list[str]:
 
 
 def _pm_rounds(cfg: MVSConfig) -> list:
-    from .patchmatch import pm_rounds
+    from .methods.patchmatch.solver import pm_rounds
 
     return pm_rounds(cfg)
 
@@ -451,7 +451,7 @@ def _coarse_choice(ctx: _MVSContext, ex) -> tuple[dict, "ViewChoice"]:
     """``--depth-views coarse``: PatchMatch's first (coarsest) round for every planned view, then the views
     whose full depth maps cover that surface (``views.coarse_depth_views``). Returns the round's task results
     and the choice; the round's maps stay in the work folder, where the chosen views' next round reads them."""
-    from .patchmatch import level_view
+    from .methods.patchmatch.solver import level_view
 
     names = list(ctx.plan)
     results = ex.run(_mvs_task, [Task(f"pm0:{n}", ("pm", n, 0)) for n in names], ctx,

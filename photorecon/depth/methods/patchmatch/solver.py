@@ -8,7 +8,7 @@ Per reference view and per pyramid level, coarse to fine:
   planes; at finer levels, each pixel takes the plane of its nearest coarse pixel (slants survive).
 * **Red-black checkerboard propagation** (ACMH's adaptive sampling: 8 regions, best neighbour of each),
   **multi-hypothesis joint view selection** per pixel, and **refinement** by perturbed and random depths
-  and normals (``_pm_kernels.pm_pass``).
+  and normals (``kernels.pm_pass``).
 * **Matching cost**: 1 - NCC, bilaterally weighted, over a strided window (``radius`` 5, ``stride`` 2: an
   11x11 window sampled every 2 pixels; ``--pm-radius 4``: 9x9, 25 samples instead of 36, 1.2x faster); on
   images of at least ``pm_sparse_min_size`` (1024) pixels, every other sample of that grid (a checkerboard:
@@ -31,16 +31,14 @@ from __future__ import annotations
 import copy
 import dataclasses
 import logging
-import time
 from dataclasses import dataclass
 from typing import Callable
 
 import cv2
 import numpy as np
 
-from ..cameras import View, invert_rigid
-from ..progress import bar
-from .config import EDGE_TOL
+from ....cameras import View, invert_rigid
+from ...config import EDGE_TOL
 
 log = logging.getLogger("photorecon")
 
@@ -68,9 +66,9 @@ def level_view(view: View, level: int) -> View:
 
 
 def _kernels():
-    from . import _pm_kernels
+    from . import kernels
 
-    return _pm_kernels
+    return kernels
 
 
 def _pinhole_K(view: View) -> np.ndarray:
@@ -112,7 +110,7 @@ class _Geometry:
 
     def reprojection(self, Kd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The geometric term's per-source terms for depth maps with intrinsics ``Kd`` (S, 3, 3): forward
-        GP = Kd R, Ge = Kd t; backward GM = Kr R^T Kd^-1, Gg = Kr R^T t (see ``_pm_kernels._geo``)."""
+        GP = Kd R, Ge = Kd t; backward GM = Kr R^T Kd^-1, Gg = Kr R^T t (see ``kernels._geo``)."""
         RT = self.R.transpose(0, 2, 1)
         GP = np.ascontiguousarray(Kd @ self.R)
         Ge = np.ascontiguousarray(np.einsum("sij,sj->si", Kd, self.t))
@@ -188,7 +186,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
     the weighted sources only (for hypotheses that start good: finer levels), else ACMH's joint view selection.
     ``views``: (H, W) int32, updated: each computed pixel's view selection as bits (bit j: source j weighted);
     with ``views_read`` its values on entry (an earlier round's, upsampled) restrict each pixel to the sources that
-    it or the neighbours it takes candidates from used (``_pm_kernels.pm_pass``).
+    it or the neighbours it takes candidates from used (``kernels.pm_pass``).
     ``counts``: a dict that gets the work done, as the number of NCC evaluations: ``"initial"`` (the starting
     costs) and ``"iterations"``, per iteration a dict (pixels computed, pixels skipped as converged, evaluations
     of the candidates and of the refinement) (``count_work``).
@@ -230,7 +228,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta,
                        params.sdy, params.sdx, params.sspat, params.sigma_c, params.min_var, best_k, depth, normal, cost)
     if prior is not None:  # planar prior (ACMP-style): hypotheses from triangulated confident pixels
-        from .planar import inject_prior
+        from ...planar import inject_prior
 
         def cost_of(d, n, out):
             k.initial_cost(ref_img, srcs, g.A, g.b, g.Kinv, GP, Ge, GM, Gg, sdepth, use_geo, lam, delta, params.sdy,
@@ -257,7 +255,7 @@ def patchmatch_view(ref_img: np.ndarray, ref: View, src_imgs: list[np.ndarray], 
         if counts is not None:
             counts.setdefault("iterations", []).append(count_work(work))
     if prior is not None and prior_after:
-        from .planar import textureless
+        from ...planar import textureless
 
         st = inject_prior(depth, normal, cost, (depth.copy(), normal.copy(), cost.copy()), g.Kinv, dmin, dmax, cost_of,
                           flat=textureless(ref_img, cfg.pm_radius))
@@ -387,32 +385,6 @@ def pruned_active(depth: np.ndarray, cost: np.ndarray, max_cost: float, ref: Vie
     if good.shape != (H, W):
         good = cv2.resize(good, (W, H), interpolation=cv2.INTER_NEAREST)
     return good > 0
-
-
-def patchmatch_all(jobs: list[PMJob], image: Callable[[str, View], np.ndarray], cfg) -> dict[str, tuple]:
-    """Multi-scale PatchMatch over every job in this process, round by round (ACMM): all views at one level
-    before any at the next finer one, so the geometric term can use the other views' depth maps. ``image(name,
-    view)`` returns the grey float32 image of view ``name`` at ``view``'s resolution. Returns name -> (depth,
-    normal (float16), cost, view, seconds) at working resolution. (``mvs.run_mvs`` runs the same rounds as a
-    task graph through ``pm_view_round``, in-process or on a cluster.)"""
-    params = PatchMatchParams(cfg)
-    by_name = {j.view.name: j for j in jobs}
-    timings: dict[str, float] = {}
-    maps: dict[tuple[str, int, str], np.ndarray] = {}
-    rounds = pm_rounds(cfg)
-    out = {}
-    for r in range(len(rounds)):
-        for job in bar(jobs, desc=f"patchmatch {r + 1}/{len(rounds)}"):
-            name = job.view.name
-            t1 = time.perf_counter()
-            depth, normal, cost, ref, views = pm_view_round(job, r, by_name, image, params, lambda n, rr, w: maps[n, rr, w])
-            maps[name, r, "views"] = views
-            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t1
-            maps[name, r, "depth"], maps[name, r, "normal"], maps[name, r, "cost"] = depth, normal, cost
-            out[name] = (depth, normal.astype(np.float16), cost, ref)
-        for key in [k for k in maps if k[1] == r - 1]:  # the previous round is no longer read
-            del maps[key]
-    return {n: o + (timings.get(n, 0.0),) for n, o in out.items()}
 
 
 def ncc_cost_reference(ref: np.ndarray, src: np.ndarray, x: int, y: int, Hm: np.ndarray, radius: int, stride: int,

@@ -12,8 +12,15 @@ to the centre pixel of the reference window, as in Gipuma / ACMH) over a strided
 in a red-black checkerboard: a pass over one colour reads only the other colour's hypotheses, so the result
 does not depend on thread scheduling; random numbers come from a hash of (seed, iteration, pixel).
 
+The file has four parts, in this order: the window and sampling layouts (plain numpy), the NCC primitives
+(``_ref_window``, ``_ncc`` and its helpers), the plane geometry (homographies, the geometric term, random
+planes) and the passes (``init_random``, ``upsample_planes``, ``initial_cost``, ``pm_pass``), then ``ncc_at``
+for the tests. It stays one file on purpose: numba's cache (``cache=True``) checks only the source file of the
+kernel it loads, so a pass cached with a primitive compiled (inlined) into it from another file would keep
+running the old primitive after that file changed. Every kernel here is rebuilt when this file changes.
+
 Every kernel takes contiguous arrays and scalars, and the slow, obviously correct ``ncc_cost_reference`` in
-``patchmatch.py`` pins ``_ncc`` in the tests.
+``solver.py`` pins ``_ncc`` in the tests.
 """
 from __future__ import annotations
 
@@ -21,10 +28,9 @@ import math
 
 import numpy as np
 
-from ..jit import njit, prange
-from .config import EDGE_TOL
+from ...config import EDGE_TOL
+from ....jit import njit, prange
 
-N_REGIONS = 8  # ACMH's adaptive checkerboard sampling: 4 near V-shaped areas + 4 far strips
 N_REFINE = 6  # hypotheses of the refinement step: (perturbed | random) x (depth | normal | both)
 # pm_pass's per-row counts: pixels computed, pixels left as converged, NCC evaluations (candidates, refinement)
 COUNT_PIXELS, COUNT_SKIPPED, COUNT_CANDIDATE, COUNT_REFINE = 0, 1, 2, 3
@@ -32,6 +38,7 @@ N_COUNTS = 4
 MAX_CARRIED_SOURCES = 31  # pm_pass' view selection bits per pixel: one int32
 
 
+# --- the window and sampling layouts (numpy) ----------------------------------------------------------------
 def sampling_regions(strip: int = 11) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 8 neighbourhood regions of ACMH's adaptive checkerboard sampling, as (dy, dx) offsets padded to a
     common length, and each region's sample count. Every offset has an odd |dy| + |dx|: the other colour."""
@@ -65,6 +72,7 @@ def window_samples(radius: int, stride: int, sigma_space: float, checker: bool =
     return dy, dx, w
 
 
+# --- random numbers, NCC primitives ---------------------------------------------------------------------------
 @njit(cache=True, inline="always")
 def _rand(s):
     """xorshift32 step on an int64 holding 32 bits; returns (state, uniform in [0, 1))."""
@@ -255,6 +263,7 @@ def _ncc_finish(s1, s2, s12, sw, mr, vr, min_var):
     return cost
 
 
+# --- plane geometry ---------------------------------------------------------------------------------------------
 @njit(cache=True)
 def _homography(A, b, j, m, h):
     for r in range(3):
@@ -343,6 +352,7 @@ def _facing(n0, n1, n2, r0, r1, r2):
     return n0, n1, n2
 
 
+# --- the passes -------------------------------------------------------------------------------------------------
 @njit(parallel=True, cache=True)
 def init_random(depth, normal, Kinv, dmin, dmax, seed, only_invalid):
     """Random hypotheses (depth uniform in inverse depth over [dmin, dmax], normal uniform on the hemisphere
@@ -780,41 +790,11 @@ def pm_pass(color, it, ref, srcs, A, b, Kinv, GP, Ge, GM, Gg, sdepth, use_geo, l
             cost[y, x] = bc
 
 
-@njit(parallel=True, cache=True)
-def photometric_cost(ref, srcs, A, b, Kinv, sdy, sdx, sspat, sigma_c, min_var, depth, normal, out):
-    """(S, H, W) photometric cost of each pixel's hypothesis in every source (2 where there is none): for
-    tests and diagnostics."""
-    H, W = ref.shape
-    S = srcs.shape[0]
-    ns = sdy.shape[0]
-    wrow = _window_row(sdy, sdx)
-    inv2sc2 = 1.0 / (2.0 * sigma_c * sigma_c)
-    for y in prange(H):
-        rv = np.empty(ns, np.float64)
-        wk = np.empty(ns, np.float64)
-        du = np.empty(ns, np.float64)
-        dv = np.empty(ns, np.float64)
-        h = np.empty(9, np.float64)
-        m = np.empty(3, np.float64)
-        for x in range(W):
-            r0 = Kinv[0, 0] * x + Kinv[0, 1] * y + Kinv[0, 2]
-            r1 = Kinv[1, 0] * x + Kinv[1, 1] * y + Kinv[1, 2]
-            r2 = Kinv[2, 0] * x + Kinv[2, 1] * y + Kinv[2, 2]
-            d = depth[y, x]
-            if d <= 0 or not _plane_m(d, normal[y, x, 0], normal[y, x, 1], normal[y, x, 2], r0, r1, r2, Kinv, m):
-                for j in range(S):
-                    out[j, y, x] = 2.0
-                continue
-            sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, inv2sc2, min_var, rv, wk, du, dv, wrow)
-            for j in range(S):
-                _homography(A, b, j, m, h)
-                out[j, y, x] = _ncc(srcs[j], x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
-
-
+# --- for the tests ----------------------------------------------------------------------------------------------
 @njit(cache=True)
 def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
     """The kernel's cost of one reference pixel through the homography ``h`` (for tests against the slow
-    reference ``patchmatch.ncc_cost_reference``)."""
+    reference ``solver.ncc_cost_reference``)."""
     ns = sdy.shape[0]
     wrow = _window_row(sdy, sdx)
     rv = np.empty(ns, np.float64)
@@ -823,77 +803,3 @@ def ncc_at(ref, src, x, y, h, sdy, sdx, sspat, sigma_c, min_var):
     dv = np.empty(ns, np.float64)
     sw, mr, vr, rad, grid = _ref_window(ref, x, y, sdy, sdx, sspat, 1.0 / (2.0 * sigma_c * sigma_c), min_var, rv, wk, du, dv, wrow)
     return _ncc(src, x, y, du, dv, rv, wk, sw, mr, vr, rad, grid, h, min_var)
-
-
-@njit(parallel=True, cache=True)
-def consistency_source(depth, Kr, Krinv, R, t, Ks, Ksinv, sdepth, reproj_px, rel_depth, cnt, err_rows, n_rows,
-                       normal, snormal, plane_px, cos_max):
-    """The multi-view filter's test of every depth of the reference map ``depth`` against one source's depth map
-    ``sdepth`` (pinhole cameras; ``R, t``: source from reference): the point goes into the source, takes the
-    source's depth at the nearest pixel and comes back; ``cnt`` += 1 where the reprojection error is below
-    ``reproj_px`` pixels and the relative depth difference below ``rel_depth``; ``err_rows`` / ``n_rows`` get
-    each row's sum and number of the agreeing errors (summed by the caller: deterministic).
-
-    Plane test (``plane_px`` > 0; ``normal`` (H, W, 3) and ``snormal`` (hs, ws, 3): each view's normals in its
-    camera frame): a pair that fails the point test also agrees when the reprojection error is below
-    ``plane_px``, each point lies within ``reproj_px`` pixel footprints (depth / Kr[0, 0]) of the other's tangent
-    plane and the normals' cosine is above ``cos_max`` (``mvs.consistency_count``)."""
-    H, W = depth.shape
-    hs, ws = sdepth.shape
-    plane = plane_px > 0 and normal.shape[0] == H and normal.shape[1] == W and snormal.shape[0] == hs and snormal.shape[1] == ws
-    for y in prange(H):
-        es = 0.0
-        en = 0
-        for x in range(W):
-            d = depth[y, x]
-            if not d > 0:
-                continue
-            X0 = d * (Krinv[0, 0] * x + Krinv[0, 1] * y + Krinv[0, 2])
-            X1 = d * (Krinv[1, 0] * x + Krinv[1, 1] * y + Krinv[1, 2])
-            X2 = d * (Krinv[2, 0] * x + Krinv[2, 1] * y + Krinv[2, 2])
-            S0 = R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2 + t[0]
-            S1 = R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2 + t[1]
-            S2 = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2 + t[2]
-            if not S2 > 0:
-                continue
-            u = (Ks[0, 0] * S0 + Ks[0, 1] * S1 + Ks[0, 2] * S2) / S2
-            v = (Ks[1, 0] * S0 + Ks[1, 1] * S1 + Ks[1, 2] * S2) / S2
-            if not (u > -0.5 and v > -0.5 and u < ws - 0.5 and v < hs - 0.5):
-                continue
-            i = int(math.floor(u + 0.5))
-            j = int(math.floor(v + 0.5))
-            ds = sdepth[j, i]
-            if not ds > 0:
-                continue
-            P0 = ds * (Ksinv[0, 0] * i + Ksinv[0, 1] * j + Ksinv[0, 2]) - t[0]
-            P1 = ds * (Ksinv[1, 0] * i + Ksinv[1, 1] * j + Ksinv[1, 2]) - t[1]
-            P2 = ds * (Ksinv[2, 0] * i + Ksinv[2, 1] * j + Ksinv[2, 2]) - t[2]
-            B0 = R[0, 0] * P0 + R[1, 0] * P1 + R[2, 0] * P2  # R^T (P - t): back in the reference frame
-            B1 = R[0, 1] * P0 + R[1, 1] * P1 + R[2, 1] * P2
-            B2 = R[0, 2] * P0 + R[1, 2] * P1 + R[2, 2] * P2
-            if not B2 > 0:
-                continue
-            ur = (Kr[0, 0] * B0 + Kr[0, 1] * B1 + Kr[0, 2] * B2) / B2
-            vr = (Kr[1, 0] * B0 + Kr[1, 1] * B1 + Kr[1, 2] * B2) / B2
-            e = math.sqrt((ur - x) ** 2 + (vr - y) ** 2)
-            if e < reproj_px and abs(B2 - d) / d < rel_depth:
-                cnt[y, x] += 1
-                es += e
-                en += 1
-            elif plane and e < plane_px:
-                n0 = np.float64(normal[y, x, 0])
-                n1 = np.float64(normal[y, x, 1])
-                n2 = np.float64(normal[y, x, 2])
-                m0 = np.float64(snormal[j, i, 0])  # the source's normal, into the reference frame: R^T m
-                m1 = np.float64(snormal[j, i, 1])
-                m2 = np.float64(snormal[j, i, 2])
-                s0 = R[0, 0] * m0 + R[1, 0] * m1 + R[2, 0] * m2
-                s1 = R[0, 1] * m0 + R[1, 1] * m1 + R[2, 1] * m2
-                s2 = R[0, 2] * m0 + R[1, 2] * m1 + R[2, 2] * m2
-                D0, D1, D2 = B0 - X0, B1 - X1, B2 - X2
-                tol = reproj_px * d / Kr[0, 0]
-                if (abs(D0 * n0 + D1 * n1 + D2 * n2) < tol and abs(D0 * s0 + D1 * s1 + D2 * s2) < tol
-                        and n0 * s0 + n1 * s1 + n2 * s2 > cos_max):
-                    cnt[y, x] += 1
-        err_rows[y] += es
-        n_rows[y] += en
