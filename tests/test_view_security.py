@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import socket
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -219,3 +220,81 @@ def test_viewer_data_holds_no_markup(tmp_path):
     assert main(["view", str(folder), "--html", str(tmp_path / "v.html")]) == 0
     page = _Page((tmp_path / "v.html").read_text())
     assert page.tags.count("script") == 3 and f"photorecon: {folder}" in page.all_text
+
+
+# --- view while another run writes the folder ------------------------------------------------------------------------
+WRITER = r"""
+import sys, time
+from pathlib import Path
+from photorecon.io.output import output_lock
+out = Path(sys.argv[1])
+with output_lock(out):
+    images_txt = out / "sparse" / "0" / "images.txt"
+    kept = images_txt.read_bytes()
+    images_txt.unlink()  # the model as a run leaves it between two steps
+    print("ready", flush=True)
+    sys.stdin.readline()
+    time.sleep(0.5)
+    images_txt.write_bytes(kept)  # the run's next step completes it
+    sys.stdin.readline()
+"""
+
+
+@pytest.mark.slow
+def test_view_while_a_run_writes_the_folder(tmp_path, capsys, caplog):
+    """Another process holds the folder's lock (a run writing it) and its model is incomplete at the moment:
+    ``view`` tries again, and shows the result once the model is whole (a warning names the run); when it
+    stays incomplete, one line names the run (exit 3), never a traceback."""
+    import json
+    import os
+    import re
+    import subprocess
+    import sys
+
+    from photorecon.cameras import Intrinsics, View, look_at, ring_positions
+    from photorecon.cli import main
+    from photorecon.io.colmap_text import SparseModel, write_colmap_text
+    from photorecon.mesh import export
+    from photorecon.report import html as report_html
+
+    out = tmp_path / "out"
+    out.mkdir()
+    export(trimesh.creation.icosphere(2), out / "mesh.ply")
+    views = [View(f"v{i}", Intrinsics.from_fov(64, 48, 50), look_at(p, [0, 0, 0]))
+             for i, p in enumerate(ring_positions(3, 4.0, 20))]
+    write_colmap_text(SparseModel(views), out / "sparse" / "0")
+    page = tmp_path / "v.html"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    writer = subprocess.Popen([sys.executable, "-c", WRITER, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                              text=True, env=env)
+    try:
+        assert writer.stdout.readline().strip() == "ready"
+        old = report_html.LOAD_RETRY_SECONDS
+        report_html.LOAD_RETRY_SECONDS = 1.0
+        try:
+            t0 = time.monotonic()
+            assert main(["view", str(out), "--html", str(page)]) == 3
+            err = capsys.readouterr().err.strip()
+            assert len(err.splitlines()) == 1 and "images.txt" in err and f"process {writer.pid}" in err, err
+            assert "is writing" in err and time.monotonic() - t0 < 10
+            assert not page.exists()
+            writer.stdin.write("fix\n")
+            writer.stdin.flush()
+            report_html.LOAD_RETRY_SECONDS = 10.0
+            assert main(["view", str(out), "--html", str(page)]) == 0  # tried again until the model was whole
+        finally:
+            report_html.LOAD_RETRY_SECONDS = old
+        assert any(f"process {writer.pid}" in r.getMessage() and "is writing" in r.getMessage()
+                   for r in caplog.records if r.levelname == "WARNING")
+        meta = json.loads(re.search(r'id="prv-meta">(.*?)</script>', page.read_text()).group(1))
+        assert meta["cameras"] == 3
+        writer.stdin.write("quit\n")
+        writer.stdin.flush()
+        assert writer.wait(10) == 0
+    finally:
+        if writer.poll() is None:
+            writer.kill()
+            writer.wait(10)
+    caplog.clear()
+    assert main(["view", str(out), "--html", str(page), "--overwrite"]) == 0  # the run ended: no warning
+    assert not any("is writing" in r.getMessage() for r in caplog.records)

@@ -178,15 +178,85 @@ def find_mesh(folder: Path) -> Path | None:
     return None
 
 
+def writing_run(folder: str | Path) -> str | None:
+    """The photorecon run (another process) that is writing the result folder ``folder`` now, in words
+    (``process PID: COMMAND``), or None: nobody holds its lock (``OUT/.photorecon.lock``), or that cannot be
+    told (no ``flock`` on this file system)."""
+    import os
+
+    from ..io.output import LOCK
+
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover (Windows)
+        return None
+    try:
+        fd = os.open(Path(folder) / LOCK, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            return None  # not held: no run, or a stale lock
+        except BlockingIOError:
+            pass
+        except OSError:
+            return None
+        try:
+            info = json.loads(os.pread(fd, 4096, 0).decode("utf-8", "replace") or "{}")
+        except (OSError, ValueError):
+            info = {}
+        info = info if isinstance(info, dict) else {}
+        return f"process {info.get('pid', '?')}" + (f": {info['command']}" if info.get("command") else "")
+    finally:
+        os.close(fd)
+
+
+# while a run writes the folder, a file may be between its two renames (a folder swapped in): tried again so long
+LOAD_RETRY_SECONDS = 3.0
+
+
 def load_result(path: str | Path) -> tuple[trimesh.Trimesh, list[View], dict[str, Path]]:
     """A result to look at: ``path`` is a result folder (``reconstruct`` or ``fuse`` output: OUT/mesh.ply,
     .glb or .obj, cameras from OUT/sparse/0 or OUT/transforms.json when there, images in OUT/images) or a
     mesh file (with the cameras of its folder when it has any; OUT/textured and a mesh in it: OUT's). Returns (mesh, cameras, view name -> image file). Raises ``InputDataError`` (no mesh, a
-    mesh without faces, unreadable cameras)."""
+    mesh without faces, unreadable cameras).
+
+    A folder that another photorecon run is writing (``writing_run``) is read as it is (its last complete
+    stages: every file and folder there is replaced whole), with a warning; a read that fails is tried again
+    for ``LOAD_RETRY_SECONDS`` (a folder being swapped in), then the error names the run."""
+    import time
+
+    from ..errors import InputDataError
+
+    p = Path(path)
+    folder = p if p.is_dir() else p.parent
+    deadline = time.monotonic() + LOAD_RETRY_SECONDS
+    while True:
+        try:
+            result = _load_result(p)
+        except (InputDataError, OSError) as exc:
+            run = writing_run(folder)
+            if run is None:
+                raise
+            if time.monotonic() < deadline:
+                time.sleep(0.2)
+                continue
+            if isinstance(exc, OSError):
+                exc = InputDataError(f"{exc.filename or folder}: {exc.strerror or exc}")
+            raise InputDataError(f"{exc}; a photorecon run ({run}) is writing {folder} now: look at it when the "
+                                 "run has finished") from None
+        run = writing_run(folder)
+        if run is not None:
+            log.warning("view: a photorecon run (%s) is writing %s now: showing what it holds at this moment "
+                        "(its last complete stages); look again when the run has finished", run, folder)
+        return result
+
+
+def _load_result(path: Path) -> tuple[trimesh.Trimesh, list[View], dict[str, Path]]:
     from ..errors import InputDataError
     from ..mesh import load_mesh
 
-    path = Path(path)
     if path.is_dir():
         mesh_path = find_mesh(path)
         if mesh_path is None:
