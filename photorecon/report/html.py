@@ -22,6 +22,7 @@ import io
 import struct
 import json
 import logging
+import threading
 import zlib
 from pathlib import Path
 
@@ -513,7 +514,7 @@ def viewer_request_refusal(headers, served_host: str) -> str | None:
     return None if ok else f"Origin {origins[0]!r} is not the viewer's page"
 
 
-_SERVE_LOCK = __import__("threading").Lock()
+_SERVE_LOCK = threading.Lock()  # one guarded start at a time: the patch is process-wide
 
 
 @contextlib.contextmanager
