@@ -19,12 +19,15 @@ OUT layout::
                            depth maps and numbers (photorecon.report)
     OUT/colmap/            SfM working files (database, distorted model), cached
     OUT/.stages/           one marker per completed stage (poses, depth, fusion, preview): a hash of its
-                           settings, of its input files' names, sizes and times and of the stage before;
-                           a re-run skips a stage whose marker matches, unless force=True
+                           settings, of its input files' names, sizes and times and of the stage before, and
+                           a SHA-256 of each of its outputs; a re-run skips a stage whose marker matches and
+                           whose outputs hold what it wrote, unless force=True
 
 The stages run through ``photorecon.stages.Stages``: every file is written atomically and a stage's marker
 only after all its outputs, so an interrupted run leaves nothing a later run mistakes for complete, and a stage
-that runs again makes every later stage run again. The input folder is never written to.
+that writes other outputs makes every later stage run again. A run that fails leaves the last complete result
+(mesh, previews, textured mesh, report) as it was (``Stages.keeping_result``). The input folder is never written
+to.
 """
 from __future__ import annotations
 
@@ -261,9 +264,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
     layout = Layout(out)
     stages = Stages(layout.stages, force)
     warnings = list(warnings or [])
-    # the report is written last: a run that fails leaves none (an earlier run's would describe other files)
-    layout.report_json.unlink(missing_ok=True)
-    layout.report_html.unlink(missing_ok=True)
+    # the report is written last; a run that fails leaves the last complete run's result and report as they were
     handler = _WarningCollector(warnings)
     log.addHandler(handler)
     executors: list = []  # the depth and fusion tasks' executor, made (a cluster started) when first needed
@@ -364,8 +365,9 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         stages.run("fusion", {"fusion": asdict(cfgs.fusion), "clean": asdict(cfgs.clean), "formats": formats,
                               **({"refine": asdict(cfgs.refine)} if cfgs.refine.refine else {})},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats] + [layout.mesh_closed(fmt) for fmt in formats],
-                   optional=[layout.mesh_closed(fmt) for fmt in formats])
-        stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh])
+                   optional=[layout.mesh_closed(fmt) for fmt in formats], result=True)
+        stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh],
+                   result=True)
 
         # 4. optional: a UV-textured mesh baked from the photos: OUT/textured/
         if run.texture:
@@ -375,7 +377,10 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                 mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
                 return texture_output(out, cfgs.texture, mesh=mesh)
 
-            stages.run("texture", asdict(cfgs.texture), texture, outputs=[layout.textured])
+            stages.run("texture", asdict(cfgs.texture), texture, outputs=[layout.textured], result=True)
+    except BaseException:
+        stages.restore()  # the last complete result put back
+        raise
     finally:
         log.removeHandler(handler)
         for ex in executors:
@@ -384,14 +389,20 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         work.rmdir()  # empty once every stage finished
     except OSError:
         pass
-    report = ReconstructResult(
-        photorecon=__version__, python=platform.python_version(), versions=_versions(), input=str(images),
-        output=str(out), parameters={k: asdict(v) for k, v in asdict_shallow(cfgs).items()}, stages=stages.stats,
-        poses=stages.info.get("poses", {}), depth=stages.info.get("depth", {}), mesh=stages.info.get("fusion", {}),
-        texture=stages.info.get("texture", {}), warnings=warnings,
-        units=stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"))
-    atomic_write_json(layout.report_json, report.to_dict())
-    write_html_report(out, report.to_dict())
+    try:
+        report = ReconstructResult(
+            photorecon=__version__, python=platform.python_version(), versions=_versions(), input=str(images),
+            output=str(out), parameters={k: asdict(v) for k, v in asdict_shallow(cfgs).items()}, stages=stages.stats,
+            poses=stages.info.get("poses", {}), depth=stages.info.get("depth", {}), mesh=stages.info.get("fusion", {}),
+            texture=stages.info.get("texture", {}), warnings=warnings,
+            units=stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"))
+        stages.set_aside([layout.report_json, layout.report_html], group="report")
+        atomic_write_json(layout.report_json, report.to_dict())
+        write_html_report(out, report.to_dict())
+    except BaseException:
+        stages.restore()
+        raise
+    stages.discard_kept()  # the run is complete: the result it replaced goes
     return report
 
 

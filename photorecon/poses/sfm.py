@@ -589,7 +589,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     layout = Layout(out)
     work = layout.colmap  # COLMAP's working files, laid out as sfm's stages want them
     _remove_leftovers(work, out)
-    stages = Stages(work / ".stages", force)
+    stages = Stages(work / ".stages", force, label="SfM ")
 
     ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None}
     ing = stages.run("ingest", ingest_params, lambda: _ingest(src, work / "images", cfg.video_every),
