@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InputDataError
 from .atomic import atomic_path
-from .paths import HEIF_SUFFIXES, inside
+from .paths import inside
 
 
 @functools.cache
@@ -35,9 +35,10 @@ def open_photo(path: str | Path):
 
 def read_bgr(path: str | Path) -> np.ndarray | None:
     """8-bit BGR (H, W, 3) with the EXIF orientation applied, by OpenCV, or by Pillow for what OpenCV cannot
-    decode (HEIC); None when neither can."""
+    decode (HEIC; a TIFF whose orientation turns it on its side, 5-8, which OpenCV 5 refuses); None when
+    neither can."""
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is not None or Path(path).suffix.lower() not in HEIF_SUFFIXES:
+    if img is not None:
         return img
     from PIL import ImageOps
 
@@ -127,8 +128,9 @@ def read_alpha(path: str | Path) -> np.ndarray | None:
         raise InputDataError(f"{path}: cannot read image ({exc.strerror or exc})") from None
     if has is False:
         return None
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None and path.suffix.lower() in HEIF_SUFFIXES:
+    # OpenCV reads the channels as stored, without the EXIF orientation: an oriented photo's alpha through Pillow
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if exif_orientation(path) in (0, 1) else None
+    if img is None:
         from PIL import ImageOps
 
         try:
@@ -157,6 +159,16 @@ def mask_file(folder: str | Path, image_name: str) -> Path | None:
         if (folder / cand).is_file():
             return inside(folder, cand, f"image {name}")
     return None
+
+
+def exif_orientation(path: str | Path) -> int:
+    """The EXIF orientation (1-8) of an image file, from its header; 1 when it has none or it cannot be read.
+    A HEIC photo's is 1: its decoder applies it (``register_heif``)."""
+    try:
+        with open_photo(path) as im:
+            return int(im.getexif().get(0x0112, 1) or 1)
+    except Exception:  # not a format PIL reads, or unparsable EXIF: as stored
+        return 1
 
 
 def image_size(path: str | Path) -> tuple[int, int]:

@@ -29,6 +29,16 @@ log = logging.getLogger("photorecon")
 COLMAP_UNREADABLE = (".webp",) + HEIF_SUFFIXES
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 FLAT_STD = 2.0  # grey levels: a photo whose pixels vary less than this is one flat colour (nothing to match)
+# COLMAP's SIFT (pycolmap 4.2, VLFeat's affine-shape detector) crashes the process (SIGSEGV) on an image whose short
+# side is under 16 pixels as it works on it, whatever the first octave (measured: 15x15, 1600x15 crash; 16x16,
+# 1600x16 do not): photos under twice that are left out, and extraction never downsizes one below it (sfm.extract)
+MIN_SIDE = 32
+# long side / short side: a 20000x20 strip is 1600x1.6 once downsized for SIFT; beyond 20:1 (a 360-degree
+# panorama is 2:1 to 8:1) a photo is no view SfM can use
+MAX_ASPECT = 20.0
+# EXIF focal length priors outside these fractions of the long side are not trusted: over 57 is a field of view
+# under 1 degree, under 0.1 wider than a fisheye's (a 3.6 mm lens on a 35 mm frame)
+FOCAL_FRAC_RANGE = (0.1, 57.0)
 
 
 @dataclass
@@ -124,83 +134,158 @@ def _exif(path: Path) -> tuple[int, float | None]:
         return 1, None
 
 
-def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1) -> Ingest:
-    """Decode every image of ``folder``; copy the readable ones to ``work`` (EXIF orientation applied). A
-    format COLMAP cannot read (``COLMAP_UNREADABLE``: WebP) becomes a PNG copy named NAME.png (NAME.EXT.png when
-    another photo is named NAME.png); ``Ingest.renamed`` maps such working names to the photos' names.
+def check_photo_name(path: Path) -> None:
+    """Refuse a photo whose name holds a line break or another control character: COLMAP's text models (and
+    photorecon's, ``sparse/0/images.txt``) hold one image name per line. Raises ``InputDataError``."""
+    name = path.name
+    if len(name.splitlines()) != 1 or any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise InputDataError(f"{path.parent / repr(name)[1:-1]}: the photo's name holds a line break or a control "
+                             "character, which COLMAP's text models (one image name per line) cannot hold; rename it")
 
-    Truncated or damaged images (``io.images.damaged_image``) are skipped with one warning that names them;
-    unreadable and non-image files with one more. Raises ``NoImagesError``
-    when fewer than ``min_images`` readable images remain.
-    """
+
+# why a photo is left out: the reasons of the one warning, in its order
+TRUNCATED = "truncated or damaged (an incomplete copy or download?)"
+UNREADABLE = "not readable images"
+TOO_SMALL = f"under {MIN_SIDE} pixels a side (too small for SIFT)"
+TOO_NARROW = f"longer than {MAX_ASPECT:g}:1 (too narrow for SIFT)"
+FLAT = "a single flat colour (nothing to match in them)"
+MASKED_OUT = "their masks exclude every pixel"
+
+
+@dataclass
+class _Photo:
+    """What the gate learnt of a photo that passed it (``_inspect``)."""
+
+    sample: np.ndarray  # BGR pixels: the whole image, or its 1/8-scale thumbnail (JPEG)
+    size: tuple[int, int]  # (width, height), EXIF orientation applied
+    orientation: int
+    focal_frac: float | None  # EXIF focal length / the long side
+
+
+def _inspect(p: Path) -> _Photo | tuple[str, str]:
+    """The gate for one photo, which it decodes once: a ``_Photo``, or (reason, how to name it) when SfM cannot
+    use it: damaged or truncated, not decodable, under ``MIN_SIDE`` pixels a side, longer than ``MAX_ASPECT``:1
+    (COLMAP's SIFT crashes on both), or one flat colour (nothing to match)."""
     from ..io.images import damaged_image
 
+    # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
+    jpeg = p.suffix.lower() in (".jpg", ".jpeg")
+    if jpeg and damaged_image(p):
+        return TRUNCATED, p.name
+    orientation, focal_frac = _exif(p)
+    # a JPEG byte-copied as it is needs its size and a look at its content, not a full decode (about 0.2 CPU s
+    # for 24 MP, and COLMAP decodes it again): its 1/8-scale DCT decode serves both
+    img, size = _jpeg_thumbnail(p) if jpeg and orientation in (0, 1) else (None, (0, 0))
+    if img is None:
+        img = read_bgr(p)  # EXIF orientation applied
+        if img is None or img.size == 0:
+            return (TRUNCATED if damaged_image(p) else UNREADABLE), p.name
+        size = (img.shape[1], img.shape[0])
+        img = np.ascontiguousarray(img[::4, ::4])  # every 16th pixel (7 ms for 12 MP)
+    w, h = size
+    if min(w, h) < MIN_SIDE:
+        return TOO_SMALL, f"{p.name} ({w}x{h})"
+    if max(w, h) > MAX_ASPECT * min(w, h):
+        return TOO_NARROW, f"{p.name} ({w}x{h})"
+    if float(cv2.meanStdDev(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))[1][0, 0]) < FLAT_STD:
+        return FLAT, p.name
+    return _Photo(img, size, orientation, focal_frac)
+
+
+def _listed(names: list[str], most: int = 20) -> str:
+    return ", ".join(names[:most]) + (" ..." if len(names) > most else "")
+
+
+def ingest_folder(folder: str | Path, work: str | Path, min_images: int = 1,
+                  left_out: dict[str, str] | None = None) -> Ingest:
+    """The image gate: every photo of ``folder`` is decoded once and checked (``_inspect``: readable and
+    complete, EXIF orientation applied, a size and shape COLMAP's SIFT takes, not one flat colour); the photos
+    that pass are copied to ``work``, upright. A JPEG upright as stored is byte-copied; a photo turned by its
+    EXIF orientation is written turned, its other EXIF (GPS, focal length) kept. A format COLMAP cannot read
+    (``COLMAP_UNREADABLE``: WebP, HEIC) becomes a PNG copy named NAME.png (NAME.EXT.png when another photo is
+    named NAME.png); ``Ingest.renamed`` maps such working names to the photos' names. ``left_out``: photos
+    already judged unusable, {name: reason} (their masks exclude every pixel: ``check_sfm_masks``).
+
+    What is left out, and why, is named in one warning; so are EXIF focal lengths too implausible to be a prior
+    (``FOCAL_FRAC_RANGE``), which SfM then estimates. A name COLMAP's text format cannot hold is refused before
+    any photo is read (``check_photo_name``). Raises ``NoImagesError`` when fewer than ``min_images`` usable
+    images remain."""
     folder, work = Path(folder), Path(work)
     paths, others = list_images(folder)
     working = _working_names(paths, others)
     for p in paths:
         check_name_length(p)
+        check_photo_name(p)
     check_distinct_views(((Path(working[p]).stem, p.name) for p in paths), str(folder))
     work.mkdir(parents=True, exist_ok=True)
-    out, bad, truncated, flat = [], [], [], []
+    left_out = left_out or {}
+    out, left, implausible = [], {}, []
     names, pictures = set(), set()
     renamed: dict[str, str] = {}  # working name -> the photo's name, for photos converted to PNG
     for p in paths:
-        # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
-        jpeg = p.suffix.lower() in (".jpg", ".jpeg")
-        why = damaged_image(p) if jpeg else None
-        orientation, focal_frac = _exif(p)
-        # a JPEG byte-copied as it is needs its size and a look at its content, not a full decode (about 0.2 CPU s
-        # for 24 MP, and COLMAP decodes it again): its 1/8-scale DCT decode serves both
-        img, size = _jpeg_thumbnail(p) if not why and jpeg and orientation in (0, 1) else (None, (0, 0))
-        if img is None and not why:
-            img, size = read_bgr(p), (0, 0)  # EXIF orientation applied
-        if img is None or img.size == 0:
-            why = why or damaged_image(p)
-            (truncated if why else bad).append(p.name)
+        photo = (left_out[p.name], p.name) if p.name in left_out else _inspect(p)
+        if isinstance(photo, tuple):
+            left.setdefault(photo[0], []).append((p.name, photo[1]))
             continue
         if p.name.lower() in names:
             raise InputDataError(f"{folder}: two images named {p.name!r} differing only in letter case")
         names.add(p.name.lower())
-        # every 16th pixel of a full decode (7 ms for 12 MP), all of a thumbnail
-        sample = img if size[0] else np.ascontiguousarray(img[::4, ::4])
-        if float(cv2.meanStdDev(cv2.cvtColor(sample, cv2.COLOR_BGR2GRAY))[1][0, 0]) < FLAT_STD:
-            flat.append(p.name)
-        pictures.add(hashlib.blake2b(sample.data, digest_size=16).digest())
+        pictures.add(hashlib.blake2b(photo.sample.data, digest_size=16).digest())
+        focal_frac = photo.focal_frac
+        if focal_frac and not FOCAL_FRAC_RANGE[0] <= focal_frac <= FOCAL_FRAC_RANGE[1]:
+            fov = np.degrees(2 * np.arctan(0.5 / focal_frac))
+            implausible.append(f"{p.name} ({focal_frac * 36:.4g} mm equivalent, {fov:.2g} degrees across)")
+            focal_frac = None
         name = working[p]
         if name != p.name:
             renamed[name] = p.name
         dst = work / name
-        W, H = size if size[0] else (img.shape[1], img.shape[0])
+        W, H = photo.size
         if not dst.exists():
             with atomic_path(dst) as tmp:
                 if name != p.name:
                     W, H = _png_copy(p, tmp)
-                elif orientation in (0, 1):
+                elif photo.orientation in (0, 1):
                     shutil.copyfile(p, tmp)  # byte copy keeps EXIF for COLMAP
-                elif not cv2.imwrite(str(tmp), img):
-                    image_write_failed(dst, img.nbytes)
+                else:
+                    _oriented_copy(p, tmp)
         out.append(IngestedImage(name, p, W, H, focal_frac * max(W, H) if focal_frac else None))
-    if truncated:
-        log.warning("skipped %d truncated or damaged image file(s) (an incomplete copy or download?): %s",
-                    len(truncated), ", ".join(truncated[:20]) + (" ..." if len(truncated) > 20 else ""))
-    skipped = truncated + bad + [p.name for p in others]
-    if len(skipped) > len(truncated):
-        rest = skipped[len(truncated):]
-        log.warning("skipped %d file(s) that are not readable images: %s", len(rest),
-                    ", ".join(rest[:20]) + (" ..." if len(rest) > 20 else ""))
+    if others:
+        left.setdefault(UNREADABLE, []).extend((p.name, p.name) for p in others)
+    reasons = [r for r in (TRUNCATED, UNREADABLE, TOO_SMALL, TOO_NARROW, FLAT, MASKED_OUT) if r in left]
+    skipped = [name for r in reasons for name, _ in left[r]]
+
+    def listed(r: str, most: int = 20) -> str:
+        return f"{r}: {_listed([label for _, label in left[r]], most)}"
+
+    if left:
+        log.warning("left out %d of %d file(s): %s", len(skipped), len(paths) + len(others),
+                    "; ".join(listed(r) for r in reasons))
+    if implausible:
+        log.warning("EXIF focal length not used as a prior for %d photo(s), outside what lenses and sensors allow "
+                    "(a field of view of 1 to about 160 degrees); SfM estimates it: %s", len(implausible),
+                    _listed(implausible, 5))
     subs = images_in_subfolders(folder)
     if len(out) < min_images:
-        found = f"{len(out)} readable image(s)" if out else "no readable image"
+        decodable = sum(len(left.get(r, [])) for r in (TOO_SMALL, TOO_NARROW, FLAT, MASKED_OUT))
+        if not out and decodable and decodable == len(left.get(FLAT, [])):
+            n = len(left[FLAT])
+            raise NoImagesError(f"{folder}: all {n} photo(s) are a single flat colour (all black? a lens cap, a "
+                                "failed exposure?): SfM finds nothing to match in them; check the photos")
+        word = "usable" if decodable else "readable"  # photos left out by the gate, or none that decodes
+        found = f"{len(out)} {word} image(s)" if out else f"no {word} image"
         need = f"; at least {min_images} needed" if out else ""  # none: the count needed says nothing more
+        why = f"; left out: {'; '.join(listed(r, 5) for r in reasons)}" if decodable else ""
         hint = f"; {subfolders_hint(folder, subs)}" if subs else ""
         formats = ", ".join(x.lstrip(".") for x in IMAGE_SUFFIXES)
-        raise NoImagesError(f"{folder}: {found} ({formats}){need}{hint}")
+        raise NoImagesError(f"{folder}: {found} ({formats}){need}{why}{hint}")
     if subs:
         log.warning("%s: the images in its subfolders are not read (%s); only the %d photo(s) in the folder "
                     "itself are used", folder, ", ".join(f"{s.name}/: {n}" for s, n in subs[:6])
                     + (" ..." if len(subs) > 6 else ""), len(out))
-    _check_content(folder, len(out), flat, len(pictures))
+    if len(out) >= 2 and len(pictures) == 1:
+        raise SfMError(f"{folder}: all {len(out)} photos are the same picture (copies of one file?); SfM needs "
+                       "photos of the scene from several viewpoints")
     return Ingest(out, skipped, renamed)
 
 
@@ -218,21 +303,6 @@ def _working_names(paths: list[Path], others: list[Path]) -> dict[Path, str]:
     return working
 
 
-def _check_content(folder: Path, n: int, flat: list[str], distinct: int) -> None:
-    """Refuse photos SfM cannot match, naming the likely cause: every one a single flat colour (black frames,
-    a lens cap, a blown exposure) is ``NoImagesError``; two or more that are all the same picture is
-    ``SfMError``. Some flat photos among good ones are only named in a warning."""
-    if flat and len(flat) == n:
-        raise NoImagesError(f"{folder}: all {n} photo(s) are a single flat colour (all black? a lens cap, a failed "
-                            "exposure?): SfM finds nothing to match in them; check the photos")
-    if flat:
-        log.warning("%d photo(s) are a single flat colour (nothing to match in them): %s", len(flat),
-                    ", ".join(flat[:20]) + (" ..." if len(flat) > 20 else ""))
-    if n >= 2 and distinct == 1:
-        raise SfMError(f"{folder}: all {n} photos are the same picture (copies of one file?); SfM needs photos "
-                       "of the scene from several viewpoints")
-
-
 def _jpeg_thumbnail(path: Path) -> tuple[np.ndarray | None, tuple[int, int]]:
     """A JPEG copied as it is needs no full decode: (its pixels at 1/8 scale, BGR, from the DCT (``draft``),
     its (width, height) from the header); (None, (0, 0)) where Pillow cannot open it (the caller decodes)."""
@@ -245,6 +315,27 @@ def _jpeg_thumbnail(path: Path) -> tuple[np.ndarray | None, tuple[int, int]]:
             return np.ascontiguousarray(np.asarray(im.convert("RGB"))[..., ::-1]), size
     except Exception:  # not readable by Pillow: the caller's full decode decides
         return None, (0, 0)
+
+
+def _oriented_copy(src: Path, dst: Path) -> None:
+    """``src`` turned upright by its EXIF orientation, in its own format at ``dst`` (a JPEG at quality 95), its
+    other EXIF kept (the GPS position that spatial matching reads, the focal length), its orientation reset;
+    alpha kept."""
+    from PIL import Image, ImageOps
+
+    try:
+        with open_photo(src) as im:
+            fmt = im.format
+            im = ImageOps.exif_transpose(im)
+            exif = im.getexif()
+            exif[0x0112] = 1
+            kw = {"exif": exif.tobytes()} if fmt in ("JPEG", "PNG", "WEBP") else {}
+            if fmt == "JPEG":
+                im = im.convert("L" if im.mode in ("L", "I;16", "I", "1") else "RGB")
+                kw.update(quality=95)
+            im.save(dst, fmt or Image.registered_extensions().get(src.suffix.lower(), "PNG"), **kw)
+    except OSError as exc:
+        raise InputDataError(f"{src}: could not write it upright (its EXIF orientation) for SfM ({exc})") from None
 
 
 def _png_copy(src: Path, dst: Path) -> tuple[int, int]:
@@ -279,7 +370,8 @@ def read_K(path: str | Path, width: int, height: int) -> Intrinsics:
 
 
 def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest:
-    """Every ``every``-th frame of a video file as PNG images in ``work`` (frame_00000.png, ...)."""
+    """Every ``every``-th decoded frame of a video file as PNG images in ``work`` (frame_00000.png, ...). Frames
+    that do not decode are passed over, and a warning says how many of the video's frames could be decoded."""
     video, work = Path(video), Path(work)
     if every < 1:
         raise BadArgumentError(f"--video-every: expected a positive frame step, got {every}")
@@ -292,12 +384,16 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
     if not cap.isOpened():
         raise NoImagesError(f"{video}: cannot open the video (unsupported codec or not a video)")
     work.mkdir(parents=True, exist_ok=True)
-    out, k = [], 0
+    total = max(0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0))  # the container's count (0: not known)
+    out, k, failed = [], 0, 0
     try:
         while True:
             ok, frame = cap.read()
-            if not ok:
-                break
+            if not ok:  # the end, or a frame that does not decode: read on while the count says more follow
+                failed += 1
+                if k + failed >= total:
+                    break
+                continue
             if k % every == 0:
                 name = f"frame_{k:05d}.png"
                 if not (work / name).exists():
@@ -310,8 +406,12 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
     finally:
         cap.release()
     if not out:
-        raise NoImagesError(f"{video}: no frame could be decoded")
-    log.info("video: %d of %d frames taken (every %d-th)", len(out), k, every)
+        raise NoImagesError(f"{video}: no frame could be decoded" + (f" (of {total})" if total else ""))
+    if k < total:
+        log.warning("%s: %d of %d frames could be decoded (a damaged or incomplete video?); %d of them taken "
+                    "(every %d-th)", video, k, total, len(out), every)
+    else:
+        log.info("video: %d of %d frames taken (every %d-th)", len(out), k, every)
     return Ingest(out)
 
 

@@ -32,7 +32,7 @@ from ..io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
 from ..io.space import check_space
 from ..layout import Layout
 from ..stages import Stages, atomic_dir, fingerprint, replace_dir
-from .sfm_inputs import _exif, _undistort_masks, _upscaled_copies, check_sfm_masks, write_colmap_masks
+from .sfm_inputs import _exif, _undistort_masks, _upscaled_copies, check_sfm_masks, sfm_masks, write_colmap_masks
 from ..fields import check_config, expect_config
 
 log = logging.getLogger("photorecon")
@@ -221,7 +221,7 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
             if masks is not None:
                 reader.mask_path = str(masks)
             ext = pycolmap.FeatureExtractionOptions()
-            ext.max_image_size = cfg.max_image_size * s
+            ext.max_image_size = sift_max_size(cfg.max_image_size, *cam["size"]) * s
             ext.sift.max_num_features = cfg.max_features
             if cam.get("sift_peak"):
                 ext.sift.peak_threshold = float(cam["sift_peak"])
@@ -234,8 +234,45 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
                                       extraction_options=ext, device=pycolmap.Device.cpu)
             if s > 1:
                 _downscale_features(tmp, cam["images"], s, *cam["size"], cam["params"])
+            if not params:
+                _drop_implausible_focal(tmp, cam["images"][0])
         _number_images_by_name(tmp)
     return database
+
+
+# the shortest side SIFT works on: COLMAP's SIFT crashes (SIGSEGV) under 16 pixels (ingest.MIN_SIDE)
+SIFT_MIN_SIDE = 32
+
+
+def sift_max_size(max_image_size: int, width: int, height: int) -> int:
+    """The longest side SIFT may downsize a ``width`` x ``height`` image to: ``max_image_size``, or more where
+    that would leave its short side under ``SIFT_MIN_SIDE`` pixels (a long, narrow photo with a small
+    --max-image-size)."""
+    short, long = sorted((max(width, 1), max(height, 1)))
+    return max(max_image_size, -(-SIFT_MIN_SIDE * long // short))
+
+
+def _drop_implausible_focal(database: Path, image_name: str) -> None:
+    """The camera of ``image_name`` without the focal length prior COLMAP read from its EXIF, where that is
+    outside what lenses allow (``ingest.FOCAL_FRAC_RANGE``, which the image gate named in its warning): its
+    focal length set to COLMAP's guess (1.2 times the long side) and not treated as known. A prior of 10000 mm
+    (0.2 degrees) let 29 pairs match but no model start."""
+    from .ingest import FOCAL_FRAC_RANGE
+
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(database))
+    try:
+        cam = db.read_camera(db.read_image_with_name(image_name).camera_id)
+        long = max(cam.width, cam.height)
+        if not cam.has_prior_focal_length or FOCAL_FRAC_RANGE[0] <= cam.mean_focal_length() / long <= FOCAL_FRAC_RANGE[1]:
+            return
+        params = np.array(cam.params, np.float64)
+        params[list(cam.focal_length_idxs())] = 1.2 * long
+        cam.params = params
+        cam.has_prior_focal_length = False
+        db.update_camera(cam)
+    finally:
+        db.close()
 
 
 def _number_images_by_name(database: Path) -> None:
@@ -464,10 +501,29 @@ def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed
                 opt = _incremental_options(pycolmap, cfg, fixed_intrinsics, relaxed)
                 recs += list(pycolmap.incremental_mapping(str(database), str(images_dir), str(run_dir), opt).values())
         if not recs:
-            raise SfMError(f"0 of {n} images registered: no two images could be matched into a model "
-                           "(do the photos overlap? are they all identical?)")
+            raise SfMError(no_model_message(database, n))
         max(recs, key=lambda r: r.num_reg_images()).write_binary(str(tmp))
     return model_dir
+
+
+def no_model_message(database: Path, n: int) -> str:
+    """Why mapping made no model of ``n`` images, from the matches in ``database``: none verified (the photos
+    do not overlap), or pairs matched that no model could start from."""
+    pycolmap = _pycolmap()
+    try:
+        db = pycolmap.Database.open(str(database))
+        try:
+            pairs, inliers = db.num_verified_image_pairs(), db.num_inlier_matches()
+        finally:
+            db.close()
+    except Exception:  # no database to read: say what is known
+        pairs = inliers = 0
+    if not pairs:
+        return (f"0 of {n} images registered: no two images could be matched (do the photos overlap? are they "
+                "all identical?)")
+    return (f"0 of {n} images registered: {pairs} image pairs were matched ({inliers:,} inlier matches), but no "
+            "model could be started from any of them (too little parallax between the photos, or a wrong focal "
+            "length: check --intrinsics / --fx and the photos' EXIF)")
 
 
 def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mask_dir: Path | None = None) -> Path:
@@ -507,7 +563,7 @@ def publish(model_dir: Path, out: Path) -> SparseModel:
     return model
 
 
-def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
+def _ingest(src: Path, work_images: Path, video_every: int, left_out: dict[str, str] | None = None) -> dict:
     """Oriented copies of the photos (or every k-th video frame) in ``work_images``; what SfM needs of them."""
     from .ingest import VIDEO_SUFFIXES, ingest_folder, video_frames
 
@@ -517,7 +573,7 @@ def _ingest(src: Path, work_images: Path, video_every: int) -> dict:
         if src.is_file() and src.suffix.lower() in VIDEO_SUFFIXES:
             ing = video_frames(src, tmp, video_every)
         else:
-            ing = ingest_folder(src, tmp, min_images=1)
+            ing = ingest_folder(src, tmp, min_images=1, left_out=left_out)
     return {"images": [[im.name, im.width, im.height, im.focal_prior_px] for im in ing.images],
             "skipped": ing.skipped, "renamed": ing.renamed}
 
@@ -584,15 +640,20 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     _quiet(pycolmap)
     src, out = Path(images_dir), Path(out)
     masks = Path(masks) if masks else None
+    left_out: dict[str, str] = {}
     if masks is not None:
-        check_sfm_masks(src, masks)
+        from .ingest import MASKED_OUT
+
+        left_out = {name: MASKED_OUT for name in sfm_masks(src, masks)[1]}
     layout = Layout(out)
     work = layout.colmap  # COLMAP's working files, laid out as sfm's stages want them
     _remove_leftovers(work, out)
     stages = Stages(work / ".stages", force, label="SfM ")
 
-    ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None}
-    ing = stages.run("ingest", ingest_params, lambda: _ingest(src, work / "images", cfg.video_every),
+    # "gate": the image gate's version (which photos it leaves out); a change re-runs the ingest
+    ingest_params = {"source": fingerprint(src), "video_every": cfg.video_every if src.is_file() else None,
+                     "gate": 2, "left_out": sorted(left_out)}
+    ing = stages.run("ingest", ingest_params, lambda: _ingest(src, work / "images", cfg.video_every, left_out),
                      outputs=[work / "images"])
     renamed = ing.get("renamed", {})  # working name -> photo name, for photos ingested as PNG copies (WebP)
     images = [IngestedImage(name, src if src.is_file() else src / renamed.get(name, name), w, h, f)
@@ -682,8 +743,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
                  n_registered(), len(names))
         attempt([dict(c, dsp_sift=True, guided=True) for c in (best[4] if best else cameras)], "_widebaseline")
     if best is None:
-        raise error or SfMError(f"0 of {len(names)} images registered: no two images could be matched into a "
-                                "model (do the photos overlap? are they all identical?)")
+        raise error or SfMError(no_model_message(work / "database.db", len(names)))
     model_dir, ext, matching, with_gps, cameras, reg_names = best
     unreg = [n for n in names if n not in set(reg_names)]
     if len(reg_names) < max(2, cfg.min_registered * len(names)):

@@ -14,19 +14,33 @@ from ..io.colmap_text import SparseModel
 
 def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
     """A user's mask folder against an image folder, before anything is written: ``{image name: mask}``.
-    Raises ``InputDataError`` naming the folder (missing, no mask matches an image name) or the mask (not
-    at its image's size). For a video only the folder is checked here; its frames' masks are checked when
-    they are converted (``write_colmap_masks``)."""
+    Raises ``InputDataError`` naming the folder (missing, no mask matches an image name), the mask (not at its
+    image's size) or the photos whose masks exclude every pixel when fewer than 2 photos are left with pixels
+    to use. For a video only the folder is checked here; its frames' masks are checked when they are converted
+    (``write_colmap_masks``)."""
+    return sfm_masks(images, masks)[0]
+
+
+def sfm_masks(images: str | Path, masks: str | Path) -> tuple[dict[str, Path], list[str]]:
+    """``check_sfm_masks``, and the names of the photos whose masks exclude every pixel (the image gate leaves
+    them out: ``ingest.ingest_folder``)."""
     from .ingest import VIDEO_SUFFIXES, list_images
-    from ..io.images import MASK_HELP, image_size, match_masks
+    from ..io.images import MASK_HELP, image_size, match_masks, read_mask
 
     images, masks = Path(images), Path(masks)
     if images.is_file() and images.suffix.lower() in VIDEO_SUFFIXES:
         if not masks.is_dir():
             raise InputDataError(f"{masks}: no such mask folder ({MASK_HELP})")
-        return {}
+        return {}, []
     paths, _ = list_images(images)
-    return match_masks(masks, {p.name: image_size(p) for p in paths})
+    found = match_masks(masks, {p.name: image_size(p) for p in paths})
+    empty = [name for name, m in found.items() if not read_mask(m).any()]
+    if empty and len(paths) - len(empty) < 2:
+        listed = ", ".join(empty[:10]) + (" ..." if len(empty) > 10 else "")
+        raise InputDataError(f"{masks}: the masks exclude every pixel of {len(empty)} photo(s) ({listed}), "
+                             f"leaving {len(paths) - len(empty)} of {len(paths)} with pixels to use (SfM needs 2); "
+                             "a mask's 0 pixels are ignored and the others used: are the masks inverted?")
+    return found, empty
 
 
 def write_colmap_masks(images: list[tuple[str, int, int]], images_dir: Path, masks: Path | None, dst: Path,
