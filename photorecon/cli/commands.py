@@ -418,14 +418,16 @@ def _run_depth_tasks(args, run, cfg_type, *extra, masks=None):
     from ..distributed import ClusterConfig, executor
     from ..io.dataset import Dataset
 
+    cfg = config_from_args(cfg_type, args)  # a bad or contradictory setting: refused before anything is read
+    cluster = config_from_args(ClusterConfig, args)
     ds = Dataset.open(args.dataset, masks_dir=masks)
     names = [n for v in ds.views for n in (f"{v.name}.npy", f"{v.name}.conf.npy", f"{v.name}.normal.npy",
                                            f"{v.name}.png")]
     with _dataset_output(ds, args.out, "depth", args.command, names + [".mvs_work", ".mono_work"],
                          args.overwrite, extra[:1]) as out:
         log.info("%s: depth maps go to %s", args.command, out)
-        with executor(config_from_args(ClusterConfig, args)) as ex:
-            return ds, run(ds, *extra, out, config_from_args(cfg_type, args), ex)
+        with executor(cluster) as ex:
+            return ds, run(ds, *extra, out, cfg, ex)
 
 
 @contextmanager

@@ -77,6 +77,7 @@ class MonoConfig:
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        self.resolved()  # an unknown preset: refused when built, before any model is loaded
 
 
 def check_model_file(path: str | Path) -> Path:
