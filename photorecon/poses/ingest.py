@@ -114,23 +114,31 @@ def _exif(path: Path) -> tuple[int, float | None]:
     orientation is applied by its decoder (1 here)."""
     try:
         with open_photo(path) as im:
-            exif = im.getexif()
-            orientation = int(exif.get(0x0112, 1) or 1)
-            sub = exif.get_ifd(0x8769) if hasattr(exif, "get_ifd") else {}
-            f35 = sub.get(0xA405) or exif.get(0xA405)
-            if f35:
-                return orientation, float(f35) / 36.0
-            f_mm = sub.get(0x920A) or exif.get(0x920A)
-            xres = sub.get(0xA20E)  # FocalPlaneXResolution
-            unit = sub.get(0xA210, 2)  # FocalPlaneResolutionUnit: 2 = inch, 3 = cm, 4 = mm
-            w = sub.get(0xA002) or im.width
-            if f_mm and xres:
-                mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0}.get(int(unit), 25.4)
-                sensor_w_mm = float(w) / float(xres) * mm_per_unit
-                if sensor_w_mm > 0:
-                    return orientation, float(f_mm) / sensor_w_mm * (float(w) / max(im.width, im.height))
-            return orientation, None
+            return _exif_of(im)
     except Exception:  # no EXIF or a format PIL cannot parse: no prior
+        return 1, None
+
+
+def _exif_of(im) -> tuple[int, float | None]:
+    """``_exif`` of an open Pillow image."""
+    try:
+        exif = im.getexif()
+        orientation = int(exif.get(0x0112, 1) or 1)
+        sub = exif.get_ifd(0x8769) if hasattr(exif, "get_ifd") else {}
+        f35 = sub.get(0xA405) or exif.get(0xA405)
+        if f35:
+            return orientation, float(f35) / 36.0
+        f_mm = sub.get(0x920A) or exif.get(0x920A)
+        xres = sub.get(0xA20E)  # FocalPlaneXResolution
+        unit = sub.get(0xA210, 2)  # FocalPlaneResolutionUnit: 2 = inch, 3 = cm, 4 = mm
+        w = sub.get(0xA002) or im.width
+        if f_mm and xres:
+            mm_per_unit = {2: 25.4, 3: 10.0, 4: 1.0}.get(int(unit), 25.4)
+            sensor_w_mm = float(w) / float(xres) * mm_per_unit
+            if sensor_w_mm > 0:
+                return orientation, float(f_mm) / sensor_w_mm * (float(w) / max(im.width, im.height))
+        return orientation, None
+    except Exception:  # unparsable EXIF: no prior
         return 1, None
 
 
@@ -168,15 +176,16 @@ def _inspect(p: Path) -> _Photo | tuple[str, str]:
     (COLMAP's SIFT crashes on both), or one flat colour (nothing to match)."""
     from ..io.images import damaged_image
 
-    # OpenCV decodes a truncated JPEG without an error (grey from where the data stops): check it first
-    jpeg = p.suffix.lower() in (".jpg", ".jpeg")
-    if jpeg and damaged_image(p):
+    # a JPEG (copied as it is where it is upright) needs no full decode: Pillow's 1/8-scale DCT decode reads
+    # every byte of its data (OpenCV decodes a truncated JPEG without an error, grey from where the data
+    # stops: Pillow says so) and gives its size, its EXIF and a look at its content, in one opening
+    look = _jpeg_look(p) if p.suffix.lower() in (".jpg", ".jpeg") else None
+    if isinstance(look, str):
         return TRUNCATED, p.name
-    orientation, focal_frac = _exif(p)
-    # a JPEG byte-copied as it is needs its size and a look at its content, not a full decode (about 0.2 CPU s
-    # for 24 MP, and COLMAP decodes it again): its 1/8-scale DCT decode serves both
-    img, size = _jpeg_thumbnail(p) if jpeg and orientation in (0, 1) else (None, (0, 0))
-    if img is None:
+    if look is not None:
+        img, size, orientation, focal_frac = look
+    else:
+        orientation, focal_frac = _exif(p)
         img = read_bgr(p)  # EXIF orientation applied
         if img is None or img.size == 0:
             return (TRUNCATED if damaged_image(p) else UNREADABLE), p.name
@@ -303,18 +312,34 @@ def _working_names(paths: list[Path], others: list[Path]) -> dict[Path, str]:
     return working
 
 
-def _jpeg_thumbnail(path: Path) -> tuple[np.ndarray | None, tuple[int, int]]:
-    """A JPEG copied as it is needs no full decode: (its pixels at 1/8 scale, BGR, from the DCT (``draft``),
-    its (width, height) from the header); (None, (0, 0)) where Pillow cannot open it (the caller decodes)."""
-    from PIL import Image
+def _jpeg_look(path: Path):
+    """A JPEG in one opening: (its pixels at 1/8 scale, BGR, upright; its (width, height) upright; its EXIF
+    orientation; its focal length prior as a fraction of the long side), or why it is damaged or truncated
+    (a str, ``io.images.damaged_image``'s words), or None where Pillow cannot judge it (the caller decodes)."""
+    from PIL import ImageFile, ImageOps
 
+    keep = ImageFile.LOAD_TRUNCATED_IMAGES
+    ImageFile.LOAD_TRUNCATED_IMAGES = False
     try:
-        with Image.open(path) as im:
-            size = im.size
-            im.draft("RGB", (max(1, size[0] // 8), max(1, size[1] // 8)))
-            return np.ascontiguousarray(np.asarray(im.convert("RGB"))[..., ::-1]), size
-    except Exception:  # not readable by Pillow: the caller's full decode decides
-        return None, (0, 0)
+        with open_photo(path) as im:
+            orientation, focal = _exif_of(im)
+            w, h = im.size
+            im.draft("RGB", (max(1, w // 8), max(1, h // 8)))
+            try:
+                im.load()
+            except (OSError, SyntaxError, ValueError) as exc:
+                text = str(exc)
+                if "truncated" in text or "broken" in text or "end of" in text.lower():
+                    return "truncated: the file ends before the image data does (an incomplete copy or download?)"
+                return f"damaged: {text}"
+            thumb = ImageOps.exif_transpose(im) if orientation not in (0, 1) else im
+            rgb = np.asarray(thumb.convert("RGB"))
+            size = (h, w) if orientation in (5, 6, 7, 8) else (w, h)
+            return np.ascontiguousarray(rgb[..., ::-1]), size, orientation, focal
+    except Exception:  # not readable by Pillow, or beyond its limits: the caller's full decode decides
+        return None
+    finally:
+        ImageFile.LOAD_TRUNCATED_IMAGES = keep
 
 
 def _oriented_copy(src: Path, dst: Path) -> None:
