@@ -347,8 +347,9 @@ def convert(sub):
                                    "or a .npy (LLFF). NeuS and LLFF pair camera i with the i-th sorted image.")
     p.add_argument("src")
     p.add_argument("dst")
-    p.add_argument("--to", choices=["auto", "colmap-text", "colmap-bin", "transforms", "blender", "neus", "llff",
-                                    "pytorch3d"], default="auto",
+    from ..io.convert import formats
+
+    p.add_argument("--to", choices=formats(), default="auto",  # the camera format registry, io.cameras
                    help="output format (default: from DST: folder -> colmap-text, .json -> transforms or blender, "
                         ".npz -> neus, .npy -> llff)")
     p.add_argument("--world", choices=["none", "nerfstudio", "instant-ngp"], default="none",
@@ -366,7 +367,7 @@ def convert(sub):
 
 
 def _run_convert(args):
-    from ..io.convert import convert_cameras, output_format
+    from ..io.convert import convert_cameras, writes_folder
     from ..io.output import check_file_output, output_folder
 
     def write():
@@ -375,7 +376,7 @@ def _run_convert(args):
 
     from pathlib import Path
 
-    if (args.to if args.to != "auto" else output_format(Path(args.dst))).startswith("colmap"):  # a folder
+    if writes_folder(args.to, Path(args.dst)):  # a COLMAP folder
         with output_folder(args.dst, args.overwrite, inputs=(args.src,), command="convert", resumable=False):
             dst = write()
     else:

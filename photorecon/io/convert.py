@@ -1,18 +1,23 @@
-"""``photorecon convert``: cameras between COLMAP text/binary, transforms.json (nerfstudio / instant-ngp and NeRF
+"""``photorecon convert``: cameras from any format ``read_model`` reads to any format of the registry
+(``io.cameras``) that can be written: COLMAP text/binary, transforms.json (nerfstudio / instant-ngp and NeRF
 Blender-synthetic), IDR / NeuS ``cameras_sphere.npz``, LLFF ``poses_bounds.npy`` and PyTorch3D (write only)."""
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..conventions import pytorch3d_from_opencv, pytorch3d_intrinsics
 from ..errors import BadArgumentError
-from .atomic import atomic_write_json
-from .colmap_text import SparseModel, write_colmap_text
+from . import cameras as camera_formats
+from .cameras import SparseModel
+from .cameras.pytorch3d import write_pytorch3d  # noqa: F401  (its old place)
+from .cameras.transforms import read_transforms
 from .dataset import read_model
-from .formats import write_llff, write_neus
-from .nerf import read_transforms, write_blender, write_transforms
 
-FORMATS = ("auto", "colmap-text", "colmap-bin", "transforms", "blender", "neus", "llff", "pytorch3d")
+FORMATS = ("auto", *camera_formats.writable())  # as at import; ``formats()`` also lists formats registered later
+
+
+def formats() -> tuple[str, ...]:
+    """``--to``'s choices: "auto" and every format that can be written."""
+    return ("auto", *camera_formats.writable())
 
 
 def load_cameras(src: str | Path, src_world: str | None = None, neus_world: str = "normalized") -> SparseModel:
@@ -24,31 +29,15 @@ def load_cameras(src: str | Path, src_world: str | None = None, neus_world: str 
     return read_model(src, neus_world=neus_world)
 
 
-def write_pytorch3d(model: SparseModel, path: str | Path) -> Path:
-    """PyTorch3D cameras as JSON: per image R (3x3), T (3), K (4x4, screen and NDC), image_size (H, W).
-    ``X_view = X_world @ R + T``; use ``PerspectiveCameras(R=R[None], T=T[None], K=K_ndc[None])`` (in_ndc=True)
-    or ``K=K_screen[None], in_ndc=False, image_size=[(H, W)]``."""
-    cams = []
-    for v in model.views:
-        R, T = pytorch3d_from_opencv(v.cam_from_world)
-        intr = v.intrinsics
-        cams.append({"name": v.name, "R": R.tolist(), "T": T.tolist(),
-                     "K_screen": pytorch3d_intrinsics(intr, "screen").tolist(),
-                     "K_ndc": pytorch3d_intrinsics(intr, "ndc").tolist(),
-                     "image_size": [intr.height, intr.width]})
-    return atomic_write_json(path, {"convention": "pytorch3d: X_view = X_world @ R + T; +x left, +y up, +z forward",
-                                    "cameras": cams})
-
-
 def output_format(dst: Path) -> str:
     """The format ``auto`` picks from DST's name."""
-    if dst.suffix == ".npz":
-        return "neus"
-    if dst.suffix == ".npy":
-        return "llff"
-    if dst.suffix == ".json":
-        return "blender" if dst.stem in ("transforms_train", "transforms_val", "transforms_test") else "transforms"
-    return "colmap-text"
+    return camera_formats.output_format(dst)
+
+
+def writes_folder(to: str, dst: Path) -> bool:
+    """Whether ``convert --to TO`` writes DST as a folder (COLMAP) rather than one file."""
+    fmt = next((f for f in camera_formats.FORMATS if f.NAME == (output_format(Path(dst)) if to == "auto" else to)), None)
+    return fmt is not None and getattr(fmt, "SUFFIX", None) is None
 
 
 def convert_cameras(src, dst, to: str = "auto", world: str = "none", src_world: str | None = None,
@@ -60,23 +49,10 @@ def convert_cameras(src, dst, to: str = "auto", world: str = "none", src_world: 
     dst = Path(dst)
     if to == "auto":
         to = output_format(dst)
-    suffix = {"transforms": ".json", "pytorch3d": ".json", "blender": ".json", "neus": ".npz", "llff": ".npy"}
-    if to in suffix and dst.suffix != suffix[to]:
-        raise BadArgumentError(f"convert: {to} output must be a {suffix[to]} file, got {dst}")
-    if to == "colmap-text":
-        return write_colmap_text(model, dst)
-    if to == "colmap-bin":
-        from .colmap import write_colmap_binary
-
-        return write_colmap_binary(model, dst)
-    if to == "transforms":
-        return write_transforms(model.views, dst, world=world)
-    if to == "blender":
-        return write_blender(model.views, dst)
-    if to == "neus":
-        return write_neus(model.views, dst, points=model.points)
-    if to == "llff":
-        return write_llff(model.views, dst, points=model.points, bounds=bounds, points_of=model.points_seen_by)
-    if to == "pytorch3d":
-        return write_pytorch3d(model, dst)
-    raise BadArgumentError(f"convert: unknown output format {to!r}; expected one of {FORMATS}")
+    fmt = next((f for f in camera_formats.FORMATS if f.NAME == to and hasattr(f, "write")), None)
+    if fmt is None:
+        raise BadArgumentError(f"convert: unknown output format {to!r}; expected one of {formats()}")
+    suffix = getattr(fmt, "SUFFIX", None)
+    if suffix is not None and dst.suffix != suffix:
+        raise BadArgumentError(f"convert: {to} output must be a {suffix} file, got {dst}")
+    return fmt.write(model, dst, world=world, bounds=bounds)

@@ -15,12 +15,10 @@ import numpy as np
 from ..cameras import View
 from ..errors import InputDataError
 from ..layout import Layout
-from .colmap_text import SparseModel, read_colmap_text
+from . import cameras as camera_formats
+from .cameras import SparseModel
 from .images import mask_file, match_masks, read_alpha, read_depth, read_image, read_mask
-from .formats import NEUS_FILES, read_llff, read_neus
-from .nerf import BLENDER_SPLITS, read_blender, read_transforms
 from .paths import IMAGE_SUFFIXES, check_distinct_views, inside
-from .strecha import read_strecha
 MIN_DEPTH_SIDE = 64  # a depth map at a working resolution: at least this long side (MVS's smallest --max-size)
 
 
@@ -36,7 +34,8 @@ def read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
 
 
 def _read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel:
-    """Cameras (and sparse points, if any) from, checked in this order:
+    """Cameras (and sparse points, if any) in the first camera format of the registry (``io.cameras.FORMATS``)
+    that finds them at ``path``, in this order:
 
     * a file: ``*.json`` (transforms.json, including NeRF Blender-synthetic ``transforms_SPLIT.json``),
       ``*.npz`` (IDR / NeuS ``cameras_sphere.npz``, in the ``neus_world`` "normalized" or "original" world),
@@ -44,40 +43,7 @@ def _read_model(path: str | Path, neus_world: str = "normalized") -> SparseModel
     * a folder: a COLMAP model (text or binary), or one holding ``sparse/0``, ``transforms.json``,
       ``transforms_{train,val,test}.json`` (Blender, all splits), ``cameras_sphere.npz`` / ``cameras.npz``
       (NeuS), ``poses_bounds.npy`` (LLFF), or Strecha ``*.camera`` files (also in ``gt_dense_cameras/``)."""
-    path = Path(path)
-    if path.is_file():
-        if path.suffix == ".json":
-            return SparseModel(read_transforms(path))
-        if path.suffix == ".npz":
-            return SparseModel(read_neus(path, neus_world))
-        if path.suffix == ".npy":
-            return SparseModel(read_llff(path))
-    if not path.is_dir():
-        raise InputDataError(f"{path}: no such COLMAP model folder or camera file (transforms.json, "
-                             "cameras_sphere.npz, poses_bounds.npy)")
-    if (path / "cameras.txt").is_file():
-        return read_colmap_text(path)
-    if (path / "cameras.bin").is_file():
-        from .colmap import read_colmap_binary
-
-        return read_colmap_binary(path)
-    for sub in ("sparse/0", "sparse"):
-        if (path / sub / "cameras.txt").is_file() or (path / sub / "cameras.bin").is_file():
-            return _read_model(path / sub)
-    if (path / "transforms.json").is_file():
-        return SparseModel(read_transforms(path / "transforms.json"))
-    if any((path / f"transforms_{s}.json").is_file() for s in BLENDER_SPLITS):
-        return SparseModel(read_blender(path))
-    if any((path / name).is_file() for name in NEUS_FILES):
-        return SparseModel(read_neus(path, neus_world))
-    if (path / "poses_bounds.npy").is_file():
-        return SparseModel(read_llff(path))
-    for folder in (path, path / "gt_dense_cameras"):
-        if folder.is_dir() and any(p.name.endswith(".camera") for p in folder.iterdir()):
-            return read_strecha(folder)
-    raise InputDataError(f"{path}: no cameras found; expected sparse/0/ (COLMAP), transforms.json, "
-                         "transforms_train.json (Blender), cameras_sphere.npz (NeuS), poses_bounds.npy (LLFF) or "
-                         "Strecha *.camera files (gt_dense_cameras/)")
+    return camera_formats.read(path, neus_world=neus_world)
 
 
 @dataclass
