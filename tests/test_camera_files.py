@@ -168,3 +168,15 @@ def test_strecha_non_finite_names_the_block(tmp_path):
     good = "10 0 3.5\n0 10 2.5\n0 0 1\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n0 0 -4\n8 6\n"
     (tmp_path / "0000.jpg.camera").write_text(good.replace("8 6", "nan 6"))
     assert "non-finite number (NaN or inf) in size" in _message(tmp_path)
+
+
+def test_colmap_binary_zero_quaternion_is_refused_not_read_as_identity(tmp_path):
+    """pycolmap turns a stored 0 0 0 0 rotation into the identity; the reader refuses it instead."""
+    import pycolmap
+
+    text = _colmap(tmp_path / "t", images="1 0 0 0 0 0 0 0 1 a.png\n\n2 1 0 0 0 0 0 0 1 b.png\n\n") / "sparse" / "0"
+    binary = tmp_path / "b"
+    binary.mkdir()
+    pycolmap.Reconstruction(str(text)).write_binary(str(binary))
+    msg = _message(binary)
+    assert str(binary) in msg and "image a.png: zero quaternion" in msg, msg

@@ -37,6 +37,18 @@ def write(model: SparseModel, path: Path, **options) -> Path:
     return write_colmap_binary(model, path)
 
 
+def _check_pose(pose, where: str):
+    """A pose pycolmap read as it was stored: a zero quaternion (which pycolmap turns into the identity) or
+    non-finite numbers raise ``InputDataError``."""
+    q = np.asarray(getattr(getattr(pose, "rotation", None), "quat", [0.0, 0.0, 0.0, 1.0]), float)
+    t = np.asarray(getattr(pose, "translation", [0.0, 0.0, 0.0]), float)
+    if not (np.isfinite(q).all() and np.isfinite(t).all()):
+        raise InputDataError(f"{where}: its rotation and translation must be finite, got {q.tolist()} {t.tolist()}")
+    if not np.any(q):
+        raise InputDataError(f"{where}: zero quaternion; the rotation must be a unit quaternion, e.g. 1 0 0 0 "
+                             "(QW QX QY QZ) for none")
+
+
 def sparse_from_pycolmap(rec, where: str = "COLMAP model") -> SparseModel:
     """A pycolmap ``Reconstruction`` as a ``SparseModel`` (registered images only); ``where`` names the model in
     errors. Image names are checked by ``paths.inside`` (relative, not leaving the image folder)."""
@@ -49,8 +61,10 @@ def sparse_from_pycolmap(rec, where: str = "COLMAP model") -> SparseModel:
             intr = intrinsics_from_colmap(model, cam.width, cam.height, list(cam.params))
         except BadArgumentError as exc:
             raise InputDataError(f"image {image.name}: {exc}") from None
+        pose = image.cam_from_world()
+        _check_pose(pose, f"{where}: image {image.name}")
         M = np.eye(4)
-        M[:3] = image.cam_from_world().matrix()
+        M[:3] = pose.matrix()
         inside(None, image.name, f"{where} image {image_id}")
         stem = Path(image.name).stem
         views.append(View(stem, intr, M, image_file=image.name, extra={"colmap_image_id": int(image_id)}))
