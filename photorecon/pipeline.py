@@ -160,9 +160,11 @@ def check_enough_depth(mean: float, per_view: dict, n_views: int, run: Reconstru
     if mean >= run.min_depth_fraction:
         return
     best = max((v["valid_fraction"] for v in per_view.values()), default=0.0)
-    hint = ("--mvs sweep is a rough preview; use --mvs patchmatch (the default)" if mvs.method == "sweep" else
-            "check that the photos overlap and the cameras are right (photorecon view OUT); lower "
-            "--min-consistent or --min-confidence")
+    from .depth.methods import method
+
+    hint = getattr(method(mvs.method), "HINT", None) or (
+        "check that the photos overlap and the cameras are right (photorecon view OUT); lower "
+        "--min-consistent or --min-confidence")
     raise NoDepthError(f"depth: only {100 * mean:.1f}% of the pixels of the {n_views} views have a confirmed depth "
                        f"(the best view {100 * best:.1f}%; at least {100 * run.min_depth_fraction:g}% needed): too "
                        f"little for a mesh; {hint}; a subject that fills only a small part of the photos: lower "
@@ -228,12 +230,10 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
     if is_video and run.poses:
         raise BadArgumentError("--poses needs an image folder whose file names match the cameras, not a video")
     formats = parse_formats(run.formats)
-    if run.depth != "mvs" and not Path(run.depth).is_dir():
-        raise BadArgumentError(f"--depth: expected 'mvs' or a folder of depth maps, got {run.depth!r}")
-    if run.depth_model:
-        from .depth.mono import check_model_file
+    from .depth.methods import method, names
 
-        check_model_file(run.depth_model)
+    for name in names("stage"):  # --depth FOLDER, --depth-model FILE.onnx: checked before anything is written
+        method(name).check(run)
     masks = Path(run.masks) if run.masks else None
     if masks is not None:  # before anything is written
         from .poses.sfm import check_sfm_masks
@@ -249,6 +249,7 @@ def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None =
 def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_video: bool, formats: tuple,
                  masks: Path | None, warnings: list[str] | None = None) -> ReconstructResult:
     """``reconstruct`` in its checked, locked output folder; ``warnings``: those of the run so far."""
+    from .depth.methods import method as depth_method, stage_method
     from .depth.mvs import run_mvs
     from .fusion import fuse_to_files, load_frames
     from .io.colmap_text import write_colmap_text
@@ -303,24 +304,23 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                    optional=[layout.masks])
         ds = Dataset.open(out)
 
-        # 2. depth: OUT/depth
-        source = "mono" if run.depth_model else "mvs" if run.depth == "mvs" else "folder"
+        # 2. depth: OUT/depth, by a depth method of the registry (photorecon/depth/methods): one that writes the
+        # folder itself when the settings select it (--depth-model, --depth FOLDER), else MVS with --mvs METHOD
+        whole = stage_method(run)
+        source = whole.SOURCE if whole is not None else "mvs"
 
         def depth() -> dict:
             written = None  # the views whose depth maps the stage reports
             with atomic_dir(layout.depth) as tmp_depth:
-                if source == "mono":
-                    from .depth.mono import MonoConfig, run_mono
-
-                    rep = run_mono(ds, run.depth_model, tmp_depth, MonoConfig(preset=run.depth_preset), executor(),
-                                   work / "depth")
-                    info = {"source": "mono", "views": rep["views"], "excluded": rep.get("excluded", {})}
-                elif source == "mvs":
+                if whole is not None:
+                    # depth maps in the given cameras' units scale with them (--marker-size, GPS)
+                    factor = stages.info["poses"].get("scale", {}).get("factor", 1.0) if run.poses else 1.0
+                    info = whole.run_stage(ds, run, tmp_depth, executor, work / "depth", factor)
+                else:
                     check_memory("depth (MVS)", depth_memory(ds.views, cfgs.mvs))
-                    if cfgs.mvs.method == "sweep":
-                        log.warning("depth: --mvs sweep is a rough preview (fronto-parallel planes): its mesh is far "
-                                    "less complete and accurate than --mvs patchmatch's; --quality preview is the "
-                                    "quick look that keeps PatchMatch")
+                    note = getattr(depth_method(cfgs.mvs.method), "NOTE", None)
+                    if note:
+                        log.warning(note)
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
                     n_depth = rep["depth_views"]["chosen"]  # the views that were to get a depth map (--depth-views)
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
@@ -332,21 +332,11 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                             "confirmed_fraction": confirmed_fraction(rep["per_view"], n_depth)}
                     check_enough_depth(info["confirmed_fraction"], rep["per_view"], n_depth, run, cfgs.mvs)
                     written = sorted(rep["per_view"])
-                else:
-                    # depth maps in the given cameras' units scale with them (--marker-size, GPS)
-                    factor = stages.info["poses"].get("scale", {}).get("factor", 1.0) if run.poses else 1.0
-                    n = _copy_depth(Path(run.depth), ds, tmp_depth, factor)
-                    info = {"source": str(run.depth), "views": n}
             _check_depth_written(layout, info["views"], written)
             log.info("depth: %d depth maps (%s)", info["views"], info["source"])
             return info
 
-        if source == "mono":
-            depth_inputs = {"model": fingerprint(run.depth_model), "preset": run.depth_preset}
-        elif source == "mvs":
-            depth_inputs = asdict(cfgs.mvs)
-        else:
-            depth_inputs = fingerprint(run.depth)
+        depth_inputs = whole.inputs(run, fingerprint) if whole is not None else asdict(cfgs.mvs)
         stages.run("depth", {"source": source, "inputs": depth_inputs}, depth, outputs=[layout.depth])
 
         # 3. fusion, cleaning, export: OUT/mesh.*; then OUT/preview.png
@@ -431,32 +421,6 @@ def _check_depth_written(layout: Layout, count: int, names: list[str] | None = N
         what = f"{layout.depth_map(missing[0])}" if missing else f"{count} depth maps ({len(have)} found)"
         raise OutputError(f"depth stage: {what} missing in {layout.depth} after the stage wrote it; was the output "
                           "folder changed by another program meanwhile? Run again to redo the stage")
-
-
-def _copy_depth(src: Path, ds, dst: Path, factor: float = 1.0) -> int:
-    """Copy NAME.npy depth maps (and confidences, previews) for the dataset's views; validate each.
-    ``factor``: multiplies the depths (the metric scale applied to the given cameras)."""
-    from .io.images import read_depth
-
-    dst.mkdir(parents=True, exist_ok=True)
-    n = 0
-    for v in ds.views:
-        p = src / f"{v.name}.npy"
-        if not p.is_file():
-            log.warning("view %s: no depth map %s; skipped", v.name, p)
-            continue
-        d = read_depth(p, (v.intrinsics.height, v.intrinsics.width), v.name)
-        if factor != 1.0:
-            np.save(dst / p.name, (d * factor).astype(np.float32))
-        else:
-            shutil.copyfile(p, dst / p.name)
-        for extra in (f"{v.name}.conf.npy", f"{v.name}.normal.npy", f"{v.name}.png"):
-            if (src / extra).is_file():
-                shutil.copyfile(src / extra, dst / extra)
-        n += 1
-    if not n:
-        raise NoDepthError(f"{src}: no depth map matches the cameras' image names")
-    return n
 
 
 def _versions() -> dict:

@@ -20,7 +20,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from photorecon import progress
-from photorecon.depth import _filter_kernel, mvs  # noqa: E402
+from photorecon.depth import _filter_kernel, graph, mvs, work  # noqa: E402
 from photorecon.depth.methods.patchmatch import kernels as _pm_kernels, solver as patchmatch  # noqa: E402
 from photorecon.io.dataset import Dataset
 
@@ -61,12 +61,12 @@ def instrument() -> None:
         return _timed(lambda *_a, **_k: f"{STATE['round']} total", orig_round)(job, r, *a, **kw)
 
     patchmatch.pm_view_round = pm_view_round
-    mvs._save = _timed(lambda *a: "io: save (np.save, atomic)", mvs._save)
-    mvs._load = _timed(lambda *a: "io: load", mvs._load)
-    mvs._level_image = _timed(lambda *a: "io: grey images (read, resize)", mvs._level_image)
-    mvs._level_mask = _timed(lambda *a: "io: masks", mvs._level_mask)
-    mvs.write_depth = _timed(lambda *a: "io: write_depth (filter's output)", mvs.write_depth)
-    mvs._mvs_task = _timed(lambda ctx, kind, *a: f"task {kind}", mvs._mvs_task)
+    work.save = _timed(lambda *a: "io: save (np.save, atomic)", work.save)
+    work.load = _timed(lambda *a: "io: load", work.load)
+    work.level_image = _timed(lambda *a: "io: grey images (read, resize)", work.level_image)
+    work.level_mask = _timed(lambda *a: "io: masks", work.level_mask)
+    graph.write_depth = _timed(lambda *a: "io: write_depth (filter's output)", graph.write_depth)
+    mvs.run_task = _timed(lambda ctx, kind, *a: f"task {kind}", mvs.run_task)
 
 
 def main() -> int:

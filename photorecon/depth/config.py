@@ -1,5 +1,6 @@
 """Multi-view stereo settings (``MVSConfig``, its presets) and the per-view depth result (``DepthResult``): what the
-stage's modules (``filter``, ``select``, ``sweep``, ``patchmatch``, ``mvs``) share, in a module that imports none of them.
+stage's modules (``filter``, ``select``, ``mvs``, the methods) share, in a module that imports none of them but the
+method registry (``methods``: ``MVSConfig.method``'s choices).
 """
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from ..cameras import View
 from ..fields import check_config
+from .methods import names as method_names, view_help
 
 # pixels: a projection this far beyond an image's first or last pixel centre is on it (a rectified pair's border row
 # lands on the other view's last one give or take rounding); PatchMatch's NCC, its slow oracle and the gap fill's
@@ -21,7 +23,8 @@ EDGE_TOL = 1e-3
 class MVSConfig:
     """Settings of the multi-view stereo stage (``photorecon mvs``)."""
 
-    method: Literal["patchmatch", "sweep"] = field(default="patchmatch", metadata={"flag": "--mvs", "help": "patchmatch: per-pixel depth and normal (ACMH/ACMM); sweep: fronto-parallel plane sweep (a fast preview)"})
+    # the registry's per-view methods (depth/methods/__init__.py), read when the hints are evaluated
+    method: Literal[method_names("view")] = field(default="patchmatch", metadata={"flag": "--mvs", "help": view_help()})
     n_sources: int = field(default=8, metadata={"help": "source views matched per reference view", "range": (1, 256)})
     max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)", "range": (64, 65536), "also": (0,)})
     min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost, 0..1) is below this before the geometric filter (0 = the filter alone decides)", "range": (0.0, 1.0)})
@@ -81,11 +84,6 @@ MVS_PRESETS: dict[str, dict] = {
                  min_consistent=1, min_confidence=0.2, filter_sources=0),  # one view confirms: keep the cost threshold
 }
 
-
-# PatchMatch on a view matched against one other view only (a stereo pair), where no third view outvotes a window
-# that straddles a depth edge: smaller, denser and sharper windows, unless set otherwise (synthetic rectified
-# pairs at 640x480, knot / room, depth within 1% on the co-visible pixels: 0.88 / 0.90 -> 0.94 / 0.95)
-PAIR_SETTINGS = {"pm_radius": 3, "pm_stride": 1, "pm_sigma_color": 0.05}
 
 
 @dataclass

@@ -51,15 +51,9 @@ def select_sources(model, ref: View, cfg: MVSConfig) -> list[View]:
     return chosen
 
 
-# Depth-range factors on the sparse points' (1st, 99th) percentiles, per method: PatchMatch searches depth
-# continuously, so a wide range costs it little; the sweep's planes get coarser as its range grows.
-DEPTH_RANGE_FACTORS = {"patchmatch": (0.6, 1.25), "sweep": (1 / 1.1, 1.1)}
-
-
-def depth_range(model, view: View, near: float = DEPTH_RANGE_FACTORS["patchmatch"][0],
-                far: float = DEPTH_RANGE_FACTORS["patchmatch"][1]) -> tuple[float, float] | None:
-    """Depth range of the sparse points seen in ``view``: their 1st percentile x ``near`` to their 99th x ``far``;
-    None without points. The near side is widened most: a surface seen at a grazing angle close to the camera
+def depth_range(model, view: View, near: float = 0.6, far: float = 1.25) -> tuple[float, float] | None:
+    """Depth range of the sparse points seen in ``view``: their 1st percentile x ``near`` to their 99th x ``far``
+    (each depth method has its factors, ``DEPTH_RANGE``; the defaults are PatchMatch's); None without points. The near side is widened most: a surface seen at a grazing angle close to the camera
     (the ground in front of a facade) yields few SIFT matches, so the points stop well short of it (Herz-Jesu-P8:
     points from 9.7 m, ground from 6 m)."""
     pts = model.points_seen_by(view.name)

@@ -1,1 +1,123 @@
-"""PatchMatch multi-view stereo."""
+"""PatchMatch multi-view stereo as a depth method (``--mvs patchmatch``, the default): per view its rounds, coarse
+to fine, each one task (round r of a view after round r - 1 of itself and, with the geometric term, of its
+sources). Its settings are ``MVSConfig``'s ``pm_*`` fields, ``geom_*``, ``planar_prior``, ``min_texture`` and
+``texture_rel``.
+
+- ``solver``: PatchMatch on one view, one round at a time (``pm_view_round``), and its rounds (``pm_rounds``).
+- ``kernels``: its numba kernels.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+
+import numpy as np
+
+from ....tasks import Task
+from ... import work
+
+log = logging.getLogger("photorecon")
+
+NAME = "patchmatch"
+# PatchMatch searches depth continuously, so a wide range costs it little; the near side is widened most
+# (``select.depth_range``)
+DEPTH_RANGE = (0.6, 1.25)
+SEEDS = True  # the sparse points a view sees start as planes of its first round
+
+# PatchMatch on a view matched against one other view only (a stereo pair), where no third view outvotes a window
+# that straddles a depth edge: smaller, denser and sharper windows, unless set otherwise (synthetic rectified
+# pairs at 640x480, knot / room, depth within 1% on the co-visible pixels: 0.88 / 0.90 -> 0.94 / 0.95)
+PAIR_SETTINGS = {"pm_radius": 3, "pm_stride": 1, "pm_sigma_color": 0.05}
+
+
+def adapt(cfg, plan: dict):
+    """``cfg`` with ``PAIR_SETTINGS`` in place of the defaults when every view of the ``plan`` has one source."""
+    from ...config import MVSConfig
+
+    if not plan or any(len(p[1]) != 1 for p in plan.values()):
+        return cfg
+    defaults = MVSConfig()
+    changes = {k: v for k, v in PAIR_SETTINGS.items() if getattr(cfg, k) == getattr(defaults, k)}
+    if changes:
+        log.info("mvs: every view has one source view (a stereo pair): %s",
+                 ", ".join(f"{k} {v}" for k, v in changes.items()))
+    return dataclasses.replace(cfg, **changes)
+
+
+def _jobs(ctx: work.MVSContext) -> dict:
+    from .solver import PMJob
+
+    return {n: PMJob(wv, srcs, rng[0], rng[1], seeds) for n, (wv, srcs, rng, seeds) in ctx.plan.items()}
+
+
+def _round_file(ctx: work.MVSContext, r: int, name: str, what: str):
+    return ctx.work / f"r{r}" / f"{name}.{what}.npy"
+
+
+def tasks(ctx: work.MVSContext) -> tuple[list[Task], dict[str, str]]:
+    """Per view its rounds: ``pm{r}:NAME`` after round r - 1 of the views it reads (``solver.round_dependencies``)."""
+    from .solver import pm_rounds, round_dependencies
+
+    jobs = _jobs(ctx)
+    n_rounds = len(pm_rounds(ctx.cfg))
+    out = []
+    for r in range(n_rounds):
+        out += [Task(f"pm{r}:{n}", (NAME, n, r), tuple(f"pm{r - 1}:{d}" for d in round_dependencies(jobs[n], r, jobs, ctx.cfg)))
+                for n in ctx.plan]
+    return out, {n: f"pm{n_rounds - 1}:{n}" for n in ctx.plan}
+
+
+def run_task(ctx: work.MVSContext, name: str, r: int = 0) -> dict:
+    """Round ``r`` of view ``name``: its maps to ``work/r{r}``, the last round's result to ``work/raw``
+    (``work.finish_depth``: confidence = 1 - cost)."""
+    from . import solver
+
+    cfg = ctx.cfg
+    t0, c0 = time.perf_counter(), time.process_time()  # CPU: all threads of this process (the kernels' too)
+    last = r == len(solver.pm_rounds(cfg)) - 1
+    done = work.raw_path(ctx, name, "depth") if last else _round_file(ctx, r, name, "depth")
+    if done.is_file():
+        return {"seconds": 0.0, "reused": True}
+    jobs = _jobs(ctx)
+
+    def load(n: str, rr: int, what: str) -> np.ndarray:
+        return work.load(_round_file(ctx, rr, n, what))
+
+    depth, normal, cost, _, views = solver.pm_view_round(jobs[name], r, jobs, lambda n, lv: work.level_image(ctx, n, lv),
+                                                         solver.PatchMatchParams(cfg), load,
+                                                         lambda n, lv: work.level_mask(ctx, n, lv))
+    seconds = time.perf_counter() - t0
+    if last:
+        work.finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
+    else:
+        work.save(_round_file(ctx, r, name, "normal"), normal)
+        work.save(_round_file(ctx, r, name, "cost"), cost)
+        if views is not None:
+            work.save(_round_file(ctx, r, name, "views"), views)
+        work.save(done, depth)
+    return {"seconds": seconds, "cpu_seconds": time.process_time() - c0}
+
+
+def coarse_rounds(cfg) -> bool:
+    """Whether the first round is a coarse one of its own (more than one round): ``--depth-views coarse``."""
+    from .solver import pm_rounds
+
+    return len(pm_rounds(cfg)) > 1
+
+
+def coarse_maps(ctx: work.MVSContext, executor) -> tuple[dict, dict]:
+    """The first (coarsest) round of every planned view, as tasks. Returns the tasks' results and per view (its
+    view at that round's resolution, depth, normal, cost); the maps stay in the work folder, where the chosen
+    views' next round reads them."""
+    from .solver import level_view, pm_rounds
+
+    names = list(ctx.plan)
+    from ...graph import run_task as graph_task
+
+    results = executor.run(graph_task, [Task(f"pm0:{n}", (NAME, n, 0)) for n in names], ctx,
+                           desc=f"mvs coarse depth ({len(names)} views)", unit="task")
+    level = pm_rounds(ctx.cfg)[0][0]
+    maps = {n: (level_view(ctx.plan[n][0], level), *(work.load(_round_file(ctx, 0, n, what))
+                                                     for what in ("depth", "normal", "cost"))) for n in names}
+    return results, maps

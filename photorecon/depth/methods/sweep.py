@@ -1,13 +1,45 @@
-"""Plane-sweep stereo: one reference image and its sources in, a z-depth map and its confidence out (ZNCC over
-fronto-parallel planes uniform in inverse depth, the best ``best_k`` sources aggregated, sub-plane refinement).
+"""Plane-sweep stereo as a depth method (``--mvs sweep``, a fast preview): one reference image and its sources in,
+a z-depth map and its confidence out (ZNCC over fronto-parallel planes uniform in inverse depth, the best
+``best_k`` sources aggregated, sub-plane refinement); one task per view. Its settings are ``MVSConfig``'s
+``n_depths``, ``window`` and ``best_k``.
 """
 from __future__ import annotations
+
+import time
 
 import cv2
 import numpy as np
 
-from ..cameras import View, invert_rigid
-from .config import MVSConfig
+from ...cameras import View, invert_rigid
+from ...tasks import Task
+from .. import work
+from ..config import MVSConfig
+
+NAME = "sweep"
+# the sweep's planes get coarser as its range grows: a narrow range around the sparse points
+DEPTH_RANGE = (1 / 1.1, 1.1)
+SEEDS = False
+NOTE = ("depth: --mvs sweep is a rough preview (fronto-parallel planes): its mesh is far less complete and accurate "
+        "than --mvs patchmatch's; --quality preview is the quick look that keeps PatchMatch")
+HINT = "--mvs sweep is a rough preview; use --mvs patchmatch (the default)"
+
+
+def tasks(ctx: work.MVSContext) -> tuple[list[Task], dict[str, str]]:
+    """One task per view: ``sweep:NAME``."""
+    last = {n: f"sweep:{n}" for n in ctx.plan}
+    return [Task(last[n], (NAME, n)) for n in ctx.plan], last
+
+
+def run_task(ctx: work.MVSContext, name: str) -> dict:
+    """The plane sweep of view ``name`` against its sources, to ``work/raw``."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    if work.raw_path(ctx, name, "depth").is_file():
+        return {"seconds": 0.0, "reused": True}
+    ref_w, srcs, rng, _ = ctx.plan[name]
+    src = [(work.working_grey(ctx, s), ctx.plan[s][0]) for s in srcs]
+    depth, conf = plane_sweep(work.working_grey(ctx, name), ref_w, src, rng[0], rng[1], ctx.cfg)
+    work.finish_depth(ctx, name, depth, conf, None)
+    return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0}
 
 
 def plane_sweep(ref_img: np.ndarray, ref: View, sources: list[tuple[np.ndarray, View]], zmin: float, zmax: float,
