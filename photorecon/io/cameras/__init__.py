@@ -37,7 +37,7 @@ FORMATS: list = [
 ]
 DEFAULT_OUTPUT = "colmap-text"  # what ``convert --to auto`` writes when no format claims the destination
 
-__all__ = ["DEFAULT_OUTPUT", "FORMATS", "SparseModel", "by_name", "detect", "output_format", "read", "register",
+__all__ = ["DEFAULT_OUTPUT", "FORMATS", "SparseModel", "detect", "output_format", "read", "register",
            "writable"]
 
 
@@ -49,14 +49,6 @@ def register(module):
         raise BadArgumentError(f"camera format {module.NAME!r} is registered already")
     FORMATS.append(module)
     return module
-
-
-def by_name(name: str):
-    """The format module called ``name``."""
-    for f in FORMATS:
-        if f.NAME == name:
-            return f
-    raise BadArgumentError(f"unknown camera format {name!r}; expected one of {[f.NAME for f in FORMATS]}")
 
 
 def writable() -> list[str]:
