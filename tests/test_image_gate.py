@@ -320,3 +320,26 @@ def test_all_flat_photos_are_still_named_as_such(tmp_path):
         cv2.imwrite(str(photos / f"black_{i}.png"), np.zeros((120, 160, 3), np.uint8))
     with pytest.raises(NoImagesError, match=r"all 3 photo\(s\) are a single flat colour"):
         ingest_folder(photos, tmp_path / "work")
+
+
+@pytest.mark.parametrize("suffix", [".png", ".tif", ".jpg"])
+def test_given_cameras_triangulation_reads_photos_upright(tmp_path, suffix):
+    """The triangulation of given cameras reads each photo upright by its EXIF orientation, as ingest_given and
+    the depth stage do (it read them as stored: a mirrored or turned picture against upright cameras), its alpha
+    turned with it."""
+    from photorecon.poses.triangulate import _read_rgb_alpha
+
+    rgba = np.dstack([_noise(24, 40, 2), np.zeros((24, 40), np.uint8)])
+    rgba[:6, :, 3] = 255
+    for o in range(1, 9):
+        exif = Image.Exif()
+        exif[0x0112] = o
+        path = tmp_path / f"o{o}{suffix}"
+        im = Image.fromarray(rgba if suffix == ".png" else rgba[..., :3])  # (OpenCV premultiplies a TIFF's alpha)
+        im.save(path, exif=exif.tobytes(), **({"quality": 98} if suffix == ".jpg" else {}))
+        upright = ImageOps.exif_transpose(Image.open(path))
+        want = np.asarray(upright.convert("RGB"))[..., ::-1].astype(float)
+        got, alpha = _read_rgb_alpha(path)
+        assert got.shape == want.shape and np.abs(got - want).mean() < 1, o
+        if suffix == ".png":
+            assert np.array_equal(alpha, np.asarray(upright.getchannel("A"))), o

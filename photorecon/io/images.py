@@ -171,6 +171,28 @@ def exif_orientation(path: str | Path) -> int:
         return 1
 
 
+def read_unchanged(path: str | Path) -> np.ndarray | None:
+    """The pixels of an image file at their stored depth and channels (OpenCV's order: BGR, BGRA, grey, grey +
+    alpha), turned upright by the EXIF orientation: OpenCV's ``IMREAD_UNCHANGED`` where there is none (it
+    ignores EXIF, but turns a TIFF by its own orientation tag), else Pillow's ``exif_transpose``. None when
+    neither can decode it."""
+    if exif_orientation(path) in (0, 1):
+        return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    from PIL import ImageOps
+
+    try:
+        with open_photo(path) as im:
+            im = ImageOps.exif_transpose(im)
+            if im.mode not in ("L", "LA", "I;16", "RGB", "RGBA"):
+                im = im.convert("RGBA" if "A" in im.getbands() else "RGB")
+            a = np.asarray(im)
+    except Exception:  # damaged or not an image: the caller names the file
+        return None
+    if a.ndim == 3 and a.shape[2] >= 3:
+        a = a[..., [2, 1, 0, 3][: a.shape[2]]]
+    return np.ascontiguousarray(a)
+
+
 def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) of an image file as ``read_image`` returns it (EXIF orientation applied), from its
     header where the format allows (PIL), without decoding pixels."""

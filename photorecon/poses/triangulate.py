@@ -83,8 +83,11 @@ def find_image(images_dir: Path, view: View) -> Path:
 
 
 def _read_rgb_alpha(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """(8-bit BGR image (H, W, 3), alpha (H, W) or None) of any 8/16-bit grey, grey+alpha, RGB or RGBA file."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    """(8-bit BGR image (H, W, 3), alpha (H, W) or None) of any 8/16-bit grey, grey+alpha, RGB or RGBA file,
+    turned upright by its EXIF orientation (as ``ingest_given`` and the depth stage see it)."""
+    from ..io.images import read_unchanged
+
+    img = read_unchanged(path)  # upright by its EXIF orientation, as every other reader sees it
     if img is None or img.size == 0:
         raise InputDataError(f"{path}: cannot read image (missing, corrupt or not an image)")
     if img.dtype != np.uint8:  # 16-bit PNG / TIFF, float TIFF: scale to 8 bit
