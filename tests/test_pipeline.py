@@ -169,9 +169,10 @@ def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path)
     faces = ran("--trunc-voxels", "4")[1]["mesh"]["faces"]
     assert faces > 0  # the reused stage's facts are still reported
 
-    # a depth map rewritten with the same bytes (a newer time): depth and what follows
+    # a depth map rewritten with the same bytes (a newer time): depth runs; it writes the same depth maps, so what
+    # follows is still complete
     np.save(depth / "view_000.npy", np.load(depth / "view_000.npy"))
-    assert ran("--trunc-voxels", "4")[0] == ["depth", "fusion", "preview"]
+    assert ran("--trunc-voxels", "4")[0] == ["depth"]
     # a depth map changed: the mesh follows it
     d = np.load(depth / "view_001.npy")
     np.save(depth / "view_001.npy", np.zeros_like(d))
