@@ -15,7 +15,8 @@ one layout; ``reconstruct`` adds the mesh, its previews and reports, and its wor
     ROOT/preview.png            the mesh from four viewpoints
     ROOT/report.json, report.html
     ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
-    ROOT/.stages/               the pipeline's stage markers
+    ROOT/.stages/               the pipeline's stage markers (the hashes of their outputs); .stages/last/: the
+                                last complete result, set aside while a run replaces it
 
 Paths only: a ``Layout`` creates, reads and checks nothing. ``COMMAND_WRITES``: for each command that writes a
 folder, the names it writes, replaces or deletes directly in it (what ``--overwrite`` must not find in a folder that
