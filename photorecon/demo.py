@@ -16,7 +16,7 @@ from pathlib import Path
 
 from .io.atomic import atomic_write_json
 from .layout import Layout
-from .fields import check_config
+from .config_checks import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -31,7 +31,7 @@ class DemoConfig:
     height: int = field(default=384, metadata={"help": "image height, pixels", "range": (64, 8192)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 

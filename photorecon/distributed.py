@@ -27,7 +27,7 @@ from typing import Any, Callable, Iterator, Sequence
 from .errors import BadArgumentError
 from .progress import bar
 from .tasks import IN_PROCESS, Executor, Task
-from .fields import check_config
+from .config_checks import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -51,7 +51,7 @@ class ClusterConfig:
     retries: int = field(default=3, metadata={"help": "with --cluster: times Dask retries a task that failed or whose worker died", "range": (0, 100)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 def parse_cluster(spec: str) -> tuple[str, int | str]:

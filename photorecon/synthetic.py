@@ -35,7 +35,7 @@ from .layout import Layout
 from .mesh import export, load_mesh
 from .progress import bar
 from .render import Renderer, SolidNoise
-from .fields import check_config
+from .config_checks import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -64,7 +64,7 @@ class SynthConfig:
     seed: int = field(default=0, metadata={"help": "random seed (texture, jitter, sparse points)", "range": (0, 2**31 - 1)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 # --- scenes ------------------------------------------------------------------------------------------------

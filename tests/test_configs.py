@@ -1,5 +1,5 @@
 """The stage configs check their own fields when built (Python API, presets, settings files and the command line
-alike), from the same declarations the command line's flags are built from (``photorecon.fields``)."""
+alike), from the same declarations the command line's flags are built from (``photorecon.config_checks``)."""
 import argparse
 import dataclasses
 import typing
@@ -144,3 +144,12 @@ def test_stage_functions_refuse_a_dict_as_config(blob_small, tmp_path, call):
     with pytest.raises(BadArgumentError, match=r"cfg: expected a photorecon\..*Config .*got dict"):
         getattr(photorecon, call)(*args, {"max_size": 800})
     assert not out.exists()
+
+
+def test_config_checks_module_keeps_its_former_name():
+    """``photorecon.fields`` (the former name) is the same module as ``photorecon.config_checks``."""
+    import photorecon.config_checks as checks
+    from photorecon.fields import check_config
+    import photorecon.fields as old
+
+    assert old is checks and check_config is checks.check_config and old._HINTS is checks._HINTS

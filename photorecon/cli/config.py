@@ -8,7 +8,7 @@ thus share a setting's name (``threads``, ``seed``): the plain flag belongs to t
 prefixed flags reach each stage on its own, and nothing crashes. Values land in ``args`` under the prefixed
 ``dest``, so ``config_from_args`` never mixes two stages' settings.
 
-Each field declares its valid values once (``photorecon.fields``: a range in its metadata, ``Literal`` choices,
+Each field declares its valid values once (``photorecon.config_checks``: a range in its metadata, ``Literal`` choices,
 a ``parse`` check for text): the flag's parser checks them when the arguments are parsed (a bad value exits 2
 with one line naming the flag and the valid values, before any work), and the config checks them again when it
 is built (values from a ``--config`` file, a preset, or the Python API), with the same ``Ranged`` objects.
@@ -24,8 +24,8 @@ import math
 import types
 import typing
 
-# ranges, choices and the check of a config's fields: photorecon.fields (the configs check themselves with it)
-from ..fields import Ranged, check_config as validate, field_flag, field_kind  # noqa: F401  (validate: API)
+# ranges, choices and the check of a config's fields: photorecon.config_checks (the configs check themselves with it)
+from ..config_checks import Ranged, check_config as validate, field_flag, field_kind  # noqa: F401  (validate: API)
 
 
 # --- the command-line parser ----------------------------------------------------------------------------------

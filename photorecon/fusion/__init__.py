@@ -16,7 +16,7 @@ import trimesh
 from ..arrays import position_order
 from ..cameras import View
 from ..errors import BadArgumentError, EmptyMeshError
-from ..fields import expect_config
+from ..config_checks import expect_config
 from ..resources import release_memory
 from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
                       tsdf_fuse_chunked)

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..cameras import View
 from ..errors import BadArgumentError
-from ..fields import check_config
+from ..config_checks import check_config
 
 
 _BYTES_PER_VOXEL = 4 + 4 + 12  # tsdf, weight, colour (float32)
@@ -45,7 +45,7 @@ class FusionConfig:
     watertight: bool = field(default=False, metadata={"help": "poisson: close what the cameras never saw into one watertight surface; report.json says how much area was invented"})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
         if self.watertight and self.mesher != "poisson":  # refused when built, before any stage runs
             raise BadArgumentError(f"--watertight needs --mesher poisson (got --mesher {self.mesher})")
 

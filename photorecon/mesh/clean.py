@@ -1,7 +1,9 @@
-"""Mesh cleaning: floaters and small components, simplification, hole filling; the Open3D conversions.
+"""Mesh cleaning: floaters and small components, the object's support (``mesh.scene``), hole filling
+(``mesh.fill``), simplification.
 
 trimesh ``Trimesh`` (with ``process=False``: geometry is never rewritten behind the caller's back) is the
-in-memory type; Open3D does the decimation, ``mesh.holes`` the hole filling, trimesh the GLB/OBJ export.
+in-memory type; Open3D (``mesh.convert``) does the decimation, ``mesh.fill`` the hole filling, trimesh the
+GLB/OBJ export.
 """
 from __future__ import annotations
 
@@ -16,9 +18,11 @@ import trimesh
 from ..arrays import isin, unique_sorted
 from ..errors import BadArgumentError, EmptyMeshError, InputDataError
 from ..io.atomic import atomic_path
-from ..fields import check_config
+from ..config_checks import check_config
+from .boundary import at_support
+from .convert import _vertex_colors, from_open3d, to_open3d
+from .fill import NO_FILL, fill_small_holes
 from .geometry import face_areas, face_centres, face_cross, face_edge_keys, triangle_components
-from .holes import NO_FILL, at_support, fill_small_holes
 from .scene import detect_and_remove
 
 log = logging.getLogger("photorecon")
@@ -46,7 +50,7 @@ class CleanConfig:
     object_cut: float = field(default=0.0, metadata={"help": "--object: remove up to this height above the support plane, scene units (0 = the support's fused thickness)", "range": (0.0, None)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 def fill_radius(cfg: CleanConfig, voxel: float | None, is_object: bool) -> float:
@@ -59,77 +63,6 @@ def fill_radius(cfg: CleanConfig, voxel: float | None, is_object: bool) -> float
         return 0.0
     voxels = cfg.fill_object_voxels if is_object and cfg.fill_object_voxels > 0 else cfg.fill_holes_voxels
     return float(voxels) * float(voxel)
-
-
-def to_open3d(mesh: trimesh.Trimesh):
-    import open3d as o3d
-
-    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
-                                  o3d.utility.Vector3iVector(np.asarray(mesh.faces, np.int32)))
-    vc = _vertex_colors(mesh)
-    if vc is not None:
-        m.vertex_colors = o3d.utility.Vector3dVector(vc[:, :3].astype(np.float64) / 255.0)
-    return m
-
-
-def raycasting_scene(mesh: trimesh.Trimesh):
-    """An Open3D ``RaycastingScene`` holding ``mesh`` (ray casting, closest points, distances)."""
-    import open3d as o3d
-
-    t = o3d.t.geometry.TriangleMesh()
-    t.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
-    t.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(t)
-    return scene
-
-
-def poisson_surface(cloud, depth: int):
-    """Screened Poisson surface reconstruction (Open3D) of the oriented point ``cloud`` at octree ``depth``:
-    (Open3D mesh, per-vertex sample density). One thread: with more, the same points give a different mesh
-    from run to run (Open3D 0.20); one thread also costs fewer CPU seconds (the dark walnut's 1.1 M points
-    at depth 10: 33 CPU s, 33 s wall, against 42 CPU s, 28 s wall on two threads)."""
-    import open3d as o3d
-
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=int(depth), n_threads=1)
-    return mesh, np.asarray(density)
-
-
-def largest_piece(mesh, manifold: bool = False) -> trimesh.Trimesh:
-    """The largest connected piece (by triangles) of ``mesh`` (trimesh or Open3D), duplicated vertices merged,
-    as a trimesh; ``manifold``: also without the faces that make an edge non-manifold (Open3D's rule)."""
-    import open3d as o3d
-
-    m = mesh if isinstance(mesh, o3d.geometry.TriangleMesh) else to_open3d(mesh)
-    m.remove_duplicated_vertices()
-    labels, counts, _ = m.cluster_connected_triangles()
-    labels = np.asarray(labels)
-    if len(counts) > 1:
-        m.remove_triangles_by_mask(labels != int(np.argmax(counts)))
-        m.remove_unreferenced_vertices()
-    if manifold:
-        m.remove_non_manifold_edges()
-    return from_open3d(m)
-
-
-def from_open3d(m, block: int = 1 << 20) -> trimesh.Trimesh:
-    """A trimesh copy of the Open3D mesh ``m`` (vertices, triangles, colours 0..255): it holds no reference to
-    ``m``'s storage, so ``m`` is freed once its last reference goes. Colours converted ``block`` vertices at a
-    time (no float copies of the whole colour array)."""
-    colors = None
-    if m.has_vertex_colors():
-        vc = np.asarray(m.vertex_colors)
-        colors = np.empty(vc.shape, np.uint8)
-        for s in range(0, len(vc), block):
-            colors[s:s + block] = np.clip(vc[s:s + block], 0, 1) * 255
-    return trimesh.Trimesh(np.array(m.vertices), np.asarray(m.triangles), vertex_colors=colors, process=False)
-
-
-def _vertex_colors(mesh: trimesh.Trimesh) -> np.ndarray | None:
-    if mesh.visual.kind == "vertex":
-        return np.asarray(mesh.visual.vertex_colors)
-    return None
 
 
 def clean(mesh: trimesh.Trimesh, cfg: CleanConfig | None = None, cameras=None) -> trimesh.Trimesh:
@@ -377,51 +310,3 @@ def simplify(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
         acc[n == 0] = np.asarray(colors, np.float64)[k, :3]
         vc = np.clip(acc / np.maximum(n, 1)[:, None] + 0.5, 0, 255).astype(np.uint8)
     return trimesh.Trimesh(V2, out.face_matrix(), vertex_colors=vc, process=False)
-
-
-def harmonic_fill(n_vertices: int, edges: np.ndarray, known: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Values (n_vertices, C) on a graph's nodes (a mesh's vertices, or its faces with ``face_adjacency``):
-    ``values`` (k, C) at the nodes ``known`` (k,) kept, the others the solution of the (uniform-weight) Laplace
-    equation over ``edges`` (E, 2): each unknown node is the mean of its neighbours, so values diffuse
-    smoothly from the known ones (a hole patch's colour blends its rim's instead of copying the nearest rim
-    point's). Unknown nodes not connected to a known one get the known values' mean (0 without any)."""
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
-
-    from .solve import solve_spd
-
-    values = np.asarray(values, np.float64).reshape(len(known), -1)
-    out = np.empty((n_vertices, values.shape[1]))
-    out[:] = values.mean(0) if len(values) else 0.0
-    out[known] = values
-    e = np.asarray(edges, np.int64).reshape(-1, 2)
-    is_known = np.zeros(n_vertices, bool)
-    is_known[known] = True
-    if is_known.all() or not len(e) or not len(known):
-        return out
-    e = np.vstack([e, e[:, ::-1]])
-    A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
-    A.data[:] = 1.0
-    # only unknown vertices in a component with a known one are solvable
-    _, comp = connected_components(A, directed=False)
-    reach = isin(comp, comp[is_known])
-    free = np.flatnonzero(~is_known & reach)
-    if not len(free):
-        return out
-    L = (sparse.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
-    fixed = np.flatnonzero(is_known)
-    rhs = -(L[free][:, fixed] @ out[fixed])
-    sol = solve_spd(L[free][:, free], rhs)
-    out[free] = np.asarray(sol).reshape(len(free), -1)
-    return out
-
-
-def fill_holes(mesh: trimesh.Trimesh, hole_size: float) -> trimesh.Trimesh:
-    """Close holes that fit in a sphere of radius ``hole_size`` (scene units; Open3D's tensor ``fill_holes``,
-    VTK's vtkFillHolesFilter)."""
-    import open3d as o3d
-
-    t = o3d.t.geometry.TriangleMesh.from_legacy(to_open3d(mesh))
-    filled = t.fill_holes(hole_size=float(hole_size)).to_legacy()
-    out = from_open3d(filled)
-    return out if len(out.faces) >= len(mesh.faces) else mesh

@@ -38,7 +38,7 @@ import trimesh
 
 from ..cameras import View
 from ..errors import BadArgumentError
-from ..fields import check_config
+from ..config_checks import check_config
 from ..jit import njit, prange
 from .geometry import face_edges
 
@@ -68,7 +68,7 @@ class RefineConfig:
     refine_max_size: int = field(default=1600, metadata={"help": "refinement: longest image side used, pixels (0 = the photos' size)", "range": (64, 65536), "also": (0,)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 # --- the numba kernels ------------------------------------------------------------------------------------

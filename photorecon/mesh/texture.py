@@ -48,7 +48,7 @@ from ..progress import bar
 from ..resources import available_bytes
 from .atlas import _Charts, _merge_boxes, _rect_layout, make_charts, pack_charts, shelf_pack
 from .clean import harmonic_fill
-from ..fields import check_config, expect_config
+from ..config_checks import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -73,7 +73,7 @@ class TextureConfig:
     consistency: float = field(default=20.0, metadata={"help": "a view whose colour of a face is farther than this RGB distance (0-255) from the median is not used for it (0 = off)", "range": (0.0, 1000.0)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 @dataclass

@@ -35,7 +35,7 @@ from ..cameras import rigid
 from ..errors import BadArgumentError, InputDataError
 from ..layout import Layout
 from ..io.colmap_text import SparseModel
-from ..fields import check_config
+from ..config_checks import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -51,7 +51,7 @@ class ScaleConfig:
     gps: bool = field(default=True, metadata={"help": "without --marker-size: align the model to east-north-up metres around the first photo with the photos' EXIF GPS (>= 3 photos, not in a line)"})
 
     def __post_init__(self):
-        check_config(self)  # types and ranges as declared (photorecon.fields)
+        check_config(self)  # types and ranges as declared (photorecon.config_checks)
         check_marker_size(self.marker_size)
         aruco_dictionary_id(self.marker_dict)  # an unknown name fails before anything runs
 

@@ -30,7 +30,7 @@ from ..conventions import colmap_from_intrinsics
 from ..errors import BadArgumentError, InputDataError, OutputError
 from ..io.colmap_text import SparseModel
 from ..io.paths import IMAGE_SUFFIXES, inside
-from ..fields import check_config
+from ..config_checks import check_config
 
 log = logging.getLogger("photorecon")
 
@@ -55,7 +55,7 @@ class TriangulateConfig:
     seed: int = field(default=0, metadata={"help": "random seed of the pairs' RANSAC and of the triangulator (the same points run after run, as SfM's --seed)", "range": (0, 2**31 - 1)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
 
 
 @dataclass
