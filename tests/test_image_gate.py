@@ -241,6 +241,17 @@ def test_a_video_with_frames_that_do_not_decode_says_how_many_did(tmp_path, capl
     assert len(warn) == 1 and f"{len(ing.images)} of 12 frames could be decoded" in warn[0], warn
 
 
+def test_a_video_of_frames_too_small_for_sift_is_refused(tmp_path):
+    path = tmp_path / "tiny.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (24, 16))
+    for i in range(3):
+        w.write(_noise(16, 24, i))
+    w.release()
+    with pytest.raises(NoImagesError, match=r"tiny.avi: its frames are 24x16, under 32 pixels a side"):
+        video_frames(path, tmp_path / "frames", every=1)
+    assert not list((tmp_path / "frames").glob("*.png"))
+
+
 # --- orientation and colour ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("suffix", [".jpg", ".png", ".tif"])
 def test_every_exif_orientation_is_applied_once(tmp_path, suffix):

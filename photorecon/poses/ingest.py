@@ -396,7 +396,9 @@ def read_K(path: str | Path, width: int, height: int) -> Intrinsics:
 
 def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest:
     """Every ``every``-th decoded frame of a video file as PNG images in ``work`` (frame_00000.png, ...). Frames
-    that do not decode are passed over, and a warning says how many of the video's frames could be decoded."""
+    that do not decode are passed over, and a warning says how many of the video's frames could be decoded.
+    Frames COLMAP's SIFT cannot take (under ``MIN_SIDE`` pixels a side, longer than ``MAX_ASPECT``:1) raise
+    ``NoImagesError``."""
     video, work = Path(video), Path(work)
     if every < 1:
         raise BadArgumentError(f"--video-every: expected a positive frame step, got {every}")
@@ -419,6 +421,10 @@ def video_frames(video: str | Path, work: str | Path, every: int = 10) -> Ingest
                 if k + failed >= total:
                     break
                 continue
+            if k == 0 and (min(frame.shape[:2]) < MIN_SIDE or max(frame.shape[:2]) > MAX_ASPECT * min(frame.shape[:2])):
+                H, W = frame.shape[:2]
+                raise NoImagesError(f"{video}: its frames are {W}x{H}, "
+                                    + (TOO_SMALL if min(H, W) < MIN_SIDE else TOO_NARROW))
             if k % every == 0:
                 name = f"frame_{k:05d}.png"
                 if not (work / name).exists():
