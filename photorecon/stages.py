@@ -233,12 +233,19 @@ class Stages:
             shutil.rmtree(self.kept_dir, ignore_errors=True)
             return
         back = [e for e in index if isinstance(e, list) and len(e) == 3 and group in (None, e[0])]
-        for _, rel, kept in reversed(back):
-            src, dst = self.kept_dir / kept, self.dir / rel
+        failed = []
+        for entry in reversed(back):
+            src, dst = self.kept_dir / entry[2], self.dir / entry[1]
             if src.exists() or src.is_symlink():
-                _remove(dst)
-                dst.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(src, dst)
+                try:
+                    _remove(dst)
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(src, dst)
+                except OSError as exc:  # kept there, and said: the error that made the run fail is the one raised
+                    failed.append(entry)
+                    log.warning("%s could not be put back from %s (%s); move it back by hand", os.path.normpath(dst),
+                                src, exc.strerror or exc)
+        back = [e for e in back if e not in failed]
         rest = [e for e in index if e not in back]
         if rest:
             atomic_write_json(self.kept_dir / "index.json", rest)
