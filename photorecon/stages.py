@@ -11,7 +11,8 @@ inode, mtime, ctime) when it was hashed: a file whose status is still that, and 
 changing its ctime (``utime`` cannot set it), so an unchanged status means unchanged content; any other file (a
 file written just before it was hashed, a copied or restored folder, another file system) is hashed again, and
 the marker's statuses are refreshed when its contents still match. Hashing runs on several threads (hashlib
-releases the GIL): about 1 GB/s a core.
+releases the GIL): about 1 GB/s a core. An SQLite database (COLMAP's) is hashed without the change counter in its
+header, which a connection that only reads it counts up (``sha256_file``).
 
 **Key and chain.** The key is a hash of the stage's parameters (settings and ``fingerprint``s of its input files)
 and of the identity of the stage before it; a stage's identity is a hash of the one before it and of its
@@ -83,13 +84,22 @@ def _files(p: Path) -> list[tuple[Path, str]]:
     return [(f, f.relative_to(p.parent).as_posix()) for f in files]
 
 
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
 def sha256_file(path: str | Path) -> str:
-    """SHA-256 of a file's bytes, read in 1 MB blocks."""
+    """SHA-256 of a file's bytes, read in 1 MB blocks. An SQLite database (COLMAP's) is hashed with its header's
+    file change counter and version-valid-for number (bytes 24-27, 92-95) as zeros: every connection that opens
+    it (pycolmap's ``Database.open``, also only to read) counts one more change there, the data unchanged."""
     h = hashlib.sha256()
     buf = bytearray(1 << 20)
     view = memoryview(buf)
     with open(path, "rb", buffering=0) as f:
+        first = True
         while n := f.readinto(buf):
+            if first and n >= 100 and buf[:16] == SQLITE_MAGIC:
+                buf[24:28] = buf[92:96] = bytes(4)
+            first = False
             h.update(view[:n])
     return h.hexdigest()
 

@@ -239,3 +239,20 @@ def test_a_failed_run_leaves_the_last_complete_result(blob8, tmp_path, monkeypat
     assert _ran(out) == [] and (out / "mesh.ply").read_bytes() == before["mesh.ply"]
     assert main(["-q", *changed]) == 0
     assert _ran(out) == ["fusion", "preview"] and (out / "mesh.ply").read_bytes() != before["mesh.ply"]
+
+
+def test_a_colmap_database_opened_to_read_is_unchanged_for_its_record(tmp_path):
+    """pycolmap counts a change in the SQLite header of a database it opens only to read it: not a change of
+    the matching stage's output (else every SfM re-run would match again); a changed page is one."""
+    pycolmap = pytest.importorskip("pycolmap")
+    from photorecon.stages import sha256_file
+
+    db = tmp_path / "database.db"
+    pycolmap.Database.open(str(db)).close()
+    before, raw = sha256_file(db), db.read_bytes()
+    pycolmap.Database.open(str(db)).close()
+    assert db.read_bytes() != raw and sha256_file(db) == before
+    data = bytearray(db.read_bytes())
+    data[len(data) // 2] ^= 1
+    db.write_bytes(bytes(data))
+    assert sha256_file(db) != before
