@@ -55,7 +55,7 @@ from .resources import check_memory
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
 from .mesh.texture import TextureConfig
-from .fields import check_config, expect_config
+from .config_checks import check_config, expect_config
 
 log = logging.getLogger("photorecon")
 
@@ -74,7 +74,7 @@ class ReconstructConfig:
     min_depth_fraction: float = field(default=0.02, metadata={"help": "MVS: fail (exit 6) when on average less than this fraction of a view's pixels gets a confirmed depth: a mesh from so little depth is a fragment (0 = off; lower it for a subject that fills only a small part of the photos)", "range": (0.0, 1.0)})
 
     def __post_init__(self):
-        check_config(self)  # types, choices and ranges as declared (photorecon.fields)
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
         # options that contradict each other: refused when built, before any stage runs
         if self.depth_model and self.depth != "mvs":
             raise BadArgumentError(f"--depth-model {self.depth_model} and --depth {self.depth} both give the depth "
@@ -101,6 +101,14 @@ class StageConfigs:
     texture: TextureConfig = field(default_factory=TextureConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
     refine: RefineConfig = field(default_factory=RefineConfig)  # photometric refinement of the cleaned mesh
+
+    @classmethod
+    def from_preset(cls, quality: str = "default", **stages) -> "StageConfigs":
+        """The settings of ``--quality QUALITY`` (``photorecon.presets``: preview, default, high), then the settings
+        of ``stages`` (``mvs={"n_sources": 6}``), which win over the preset as a command-line flag does."""
+        from .presets import stage_configs
+
+        return stage_configs(quality, **stages)
 
     def __post_init__(self):
         for f in fields(self):  # each stage's config of its own class (each checked its fields when built)
@@ -215,12 +223,18 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
 
 
 def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
-                overwrite: bool = False) -> ReconstructResult:
-    """Run the whole pipeline; returns what it did (also written to OUT/report.json)."""
+                overwrite: bool = False, quality: str | None = None) -> ReconstructResult:
+    """Run the whole pipeline; returns what it did (also written to OUT/report.json). ``quality``: the settings of
+    ``--quality`` (``StageConfigs.from_preset(quality)``), in place of ``cfgs``."""
     from .io.output import output_folder
     from .poses.ingest import VIDEO_SUFFIXES, not_a_folder
     from .mesh import parse_formats
 
+    if quality is not None:
+        if cfgs is not None:
+            raise BadArgumentError(f"reconstruct: give cfgs or quality={quality!r}, not both (settings over a preset: "
+                                   f"cfgs=StageConfigs.from_preset({quality!r}, mvs={{...}}))")
+        cfgs = StageConfigs.from_preset(quality)
     cfgs = expect_config(cfgs, StageConfigs, "cfgs")
     run = cfgs.run
     images = Path(images)

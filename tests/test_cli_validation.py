@@ -205,7 +205,8 @@ def test_unexpected_failure_is_one_line_exit_10(fast_main, parser, monkeypatch, 
 
 def test_settings_resolve_in_order(parser, tmp_path):
     """Config default < preset < settings file < command line."""
-    from photorecon.cli.commands import QUALITY_PRESETS, _apply_quality
+    from photorecon.cli.options import _apply_quality
+    from photorecon.presets import QUALITY_PRESETS
     from photorecon.depth.mvs import MVSConfig
     from photorecon.fusion import FusionConfig
     from photorecon.poses.sfm import SfMConfig

@@ -693,7 +693,7 @@ def test_eval_warns_when_frames_differ_and_cannot_be_aligned(result_in_sfm_frame
 
     import trimesh
 
-    from photorecon.commands import _align_for_eval
+    from photorecon.evaluate import align_to_truth
 
     out, data = result_in_sfm_frame
     gt = str(data / "gt_mesh.ply")
@@ -705,12 +705,12 @@ def test_eval_warns_when_frames_differ_and_cannot_be_aligned(result_in_sfm_frame
     shutil.copy(out / "mesh.ply", alone / "mesh.ply")  # no cameras beside it
     args = argparse.Namespace(mesh=str(alone / "mesh.ply"), gt=gt, poses=None, ref=None, align_poses=None)
     mesh, truth = trimesh.load(alone / "mesh.ply"), trimesh.load(gt)
-    moved, alignment, warning = _align_for_eval(mesh, truth, args)
+    moved, alignment, warning = align_to_truth(mesh, truth, args)
     assert moved is mesh and alignment is None and "bounding box" in warning and "same frame" in warning
-    assert _align_for_eval(truth, truth, args)[2] is None  # the same frame: no warning
+    assert align_to_truth(truth, truth, args)[2] is None  # the same frame: no warning
     # cameras given on the command line align it (the result's own, and the truth's)
     args.poses, args.ref = str(out / "sparse" / "0"), str(data / "sparse" / "0")
-    moved, alignment, warning = _align_for_eval(mesh, truth, args)
+    moved, alignment, warning = align_to_truth(mesh, truth, args)
     assert alignment["views"] == 12 and warning is None
     assert np.abs(np.asarray(moved.vertices) - np.asarray(truth.vertices)).max() < 1e-6
     assert main(["eval", "--mesh", str(alone / "mesh.ply"), "--gt", gt, "--align-poses"]) == 2

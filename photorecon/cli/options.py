@@ -1,5 +1,5 @@
-"""What the sub-commands share: the quality presets (``--quality``), the options ``-h`` shows (the others are in
-``--help-all``) and their short help texts.
+"""What the sub-commands share: the ``--quality`` option (its presets: ``photorecon.presets``), the output
+options, the options ``-h`` shows (the others are in ``--help-all``) and their short help texts.
 """
 from __future__ import annotations
 
@@ -8,22 +8,20 @@ import argparse
 from .config import apply_preset
 
 
-# Quality presets of ``reconstruct --quality`` (and of ``mvs`` / ``sfm`` for their own stages): settings by
-# ``dest``; a flag the user gives (or a --config file sets) wins over the preset. "default" changes nothing.
-QUALITY_PRESETS: dict[str, dict[str, object]] = {
-    # about 1/4 of the default's depth pixels, half the sources, fewer iterations, the checkerboard window from
-    # 800 px, coarser voxels, no watertight companion: a quick look (about a third of the default's CPU; grazing
-    # ground is less complete)
-    "preview": {"sfm.max_image_size": 1024, "sfm.max_features": 4096,
-                "mvs.max_size": 800, "mvs.n_sources": 4, "mvs.filter_sources": 8, "mvs.pm_levels": 3,
-                "mvs.pm_iterations": 3, "mvs.pm_final_iterations": 0, "mvs.pm_sparse_min_size": 800,
-                "fusion.voxel_footprints": 2.0, "clean.closed": "off"},
-    "default": {},
-    # features and depth up to 2400 px, more sources and iterations, finer voxels
-    "high": {"sfm.max_image_size": 2400, "sfm.max_features": 16384,
-             "mvs.max_size": 2400, "mvs.n_sources": 10, "mvs.pm_iterations": 6, "mvs.pm_fine_iterations": 2,
-             "fusion.voxel_footprints": 1.0},
-}
+OVERWRITE_HELP = ("write into a non-empty folder this command did not write: its files are added next to what is "
+                  "there, which is kept (never replaced)")
+OVERWRITE_FILE_HELP = "replace an existing output file (never an input, never part of a photorecon result)"
+
+
+def _out_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+    p.add_argument("-o", "--out", required=required, help="output folder")
+    p.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+
+
+# The quality presets of ``reconstruct --quality`` (and of ``mvs`` / ``sfm`` for their own stages) are
+# photorecon.presets' table, the one the Python API reads (StageConfigs.from_preset): settings by ``dest``; a flag
+# the user gives (or a --config file sets) wins over the preset.
+from ..presets import QUALITY_PRESETS  # noqa: E402
 
 
 # What -h shows of the commands with many options (the others: --help-all). An option a command lacks is skipped.
