@@ -9,6 +9,7 @@ import logging
 import re
 import signal
 import sys
+import warnings
 
 from .. import __version__
 from .config import COMMANDS, Parser, apply_settings_file
@@ -128,7 +129,10 @@ def _main(argv: list[str] | None) -> int:
         # under ulimit -v: fewer malloc arenas; the commands that run the stages load the libraries (or exit 11) first
         fit_address_space(preload=args.command in STAGE_COMMANDS)
         _install_signal_handlers()  # again, after the native libraries' own
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            if not args.verbose:  # libraries' own Python warnings (deprecations, numpy's RuntimeWarning, ...): not
+                warnings.simplefilter("ignore")  # photorecon's to report, nothing a user can act on; -v shows them
+            return int(args.func(args) or 0)
     except PhotoreconError as exc:
         print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code

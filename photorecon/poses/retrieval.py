@@ -13,7 +13,11 @@ does; only the choice of pairs differs.
 from __future__ import annotations
 
 import logging
+import os
+import re
+import sys
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +40,48 @@ def _pycolmap():
     return load()
 
 
+# FAISS's note when COLMAP trains the coarse search index over the visual words (2 sqrt(W) cells for W words,
+# and FAISS asks for 39 points per cell): every index under 6,084 words gets it, whatever the photos. The words
+# are all indexed and searched; it is not a failure and nothing to act on, so it shows with --verbose only.
+FAISS_NOTE = re.compile(r"^WARNING clustering \d+ points to \d+ centroids: please provide at least \d+ training points")
+
+
+@contextmanager
+def native_stderr_filtered(drop: re.Pattern, what: str = "retrieval"):
+    """During the block, the process's stderr (file descriptor 2, where native libraries print) goes to a
+    temporary file; afterwards its lines that ``drop`` matches are logged at debug level (``what``: their
+    source) and the others written to stderr as they were. Lines other threads wrote meanwhile are kept, only
+    later. Without a usable descriptor 2 the block runs as it is."""
+    try:
+        sys.stderr.flush()
+    except (AttributeError, ValueError, OSError):
+        pass
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            kept = []
+            for line in tmp.read().decode("utf-8", "replace").splitlines(keepends=True):
+                if drop.search(line):
+                    log.debug("%s: %s", what, line.rstrip())
+                else:
+                    kept.append(line)
+            if kept:
+                try:
+                    os.write(2, "".join(kept).encode())
+                except OSError:  # pragma: no cover
+                    pass
+
+
 def database_images(database: Path) -> dict[int, str]:
     """The images of a COLMAP database: {image id: name}."""
     pycolmap = _pycolmap()
@@ -56,7 +102,8 @@ def visual_words(num_images: int) -> int:
 def build_index(database: Path, path: Path, seed: int = 0, threads: int = -1) -> Path:
     """A visual index of the photos in the COLMAP ``database``, written to ``path``: visual words trained on up
     to ``INDEX_SAMPLE`` descriptors sampled evenly over the photos (a random ``INDEX_SAMPLE_PER_IMAGE`` or
-    fewer of each). The photos themselves are indexed when pairs are drawn (``retrieval_pairs``)."""
+    fewer of each). The photos themselves are indexed when pairs are drawn (``retrieval_pairs``). The same
+    database and ``seed`` give the same index, byte for byte (``threads`` is not used for it: see below)."""
     pycolmap = _pycolmap()
     rng = np.random.default_rng(seed)
     db = pycolmap.Database.open(str(database))
@@ -76,8 +123,15 @@ def build_index(database: Path, path: Path, seed: int = 0, threads: int = -1) ->
     index = pycolmap.VisualIndex.create(128, 64)
     opt = pycolmap.VisualIndex.BuildOptions()
     opt.num_visual_words = words
-    opt.num_threads = threads
-    index.build(opt, pycolmap.FeatureDescriptorsFloat(pycolmap.FeatureExtractorType.SIFT, sample))
+    # The same photos, the same index (and so the same pairs): COLMAP draws the Hamming embedding's projection
+    # from its random generator (seeded here; unseeded it differs every run), and on more than one thread the
+    # words' search index and embedding differ from run to run even seeded (16 ring views: 111, 112 or 113 pairs
+    # from the same features). The bulk of the work, the k-means of the words, runs on FAISS's own threads
+    # whatever this setting: the build took the same CPU time (24k descriptors, 512 words: 16-17 CPU s, 2026-11-28).
+    opt.num_threads = 1
+    pycolmap.set_random_seed(seed)
+    with native_stderr_filtered(FAISS_NOTE, "retrieval: FAISS"):
+        index.build(opt, pycolmap.FeatureDescriptorsFloat(pycolmap.FeatureExtractorType.SIFT, sample))
     index.write(str(path))
     log.debug("retrieval: %d visual words from %d descriptors of %d photos", words, len(sample), len(ids))
     return path
