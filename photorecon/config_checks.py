@@ -157,8 +157,9 @@ def _num(x):
 
 
 def field_flag(f: dataclasses.Field) -> str:
-    """A config field's plain flag: ``metadata['flag']`` or ``--field-name``."""
-    return f.metadata.get("flag") or "--" + f.name.replace("_", "-")
+    """A config field's plain flag: its name, ``--field-name`` (a ``metadata['flag']`` of another name is not
+    read: a flag renamed to its field's name keeps its former name as an alias, ``photorecon.cli.config.RENAMED``)."""
+    return "--" + f.name.replace("_", "-")
 
 
 def field_kind(tp) -> tuple[type | None, bool]:

@@ -319,7 +319,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         ds = Dataset.open(out)
 
         # 2. depth: OUT/depth, by a depth method of the registry (photorecon/depth/methods): one that writes the
-        # folder itself when the settings select it (--depth-model, --depth FOLDER), else MVS with --mvs METHOD
+        # folder itself when the settings select it (--depth-model, --depth FOLDER), else MVS with --method METHOD
         whole = stage_method(run)
         source = whole.SOURCE if whole is not None else "mvs"
 

@@ -2,7 +2,7 @@
 ``StageConfigs.from_preset`` / ``reconstruct(quality=...)``; every field's flag is its name; a renamed flag or
 settings-file key still works with a one-line pointer to its new name; tuning settings stay out of --help-all;
 the commands' modules stay small."""
-import argparse
+import re
 from pathlib import Path
 
 import pytest
@@ -81,3 +81,131 @@ def test_reconstruct_quality_runs_with_the_preset(tmp_path, monkeypatch):
 def test_commands_modules_stay_small():
     for path in (ROOT / "photorecon" / "cli").glob("*.py"):
         assert len(path.read_text().splitlines()) <= 500, path.name
+
+
+# --- every flag is its field's name; former names still work ----------------------------------------------
+
+
+def test_every_config_flag_is_its_field_name(parser):
+    import dataclasses
+
+    from photorecon.cli.config import config_prefix
+    from photorecon.pipeline import StageConfigs
+
+    actions = parser.command_parser("reconstruct")._option_string_actions
+    for cfg in vars(StageConfigs()).values():
+        prefix = config_prefix(type(cfg))
+        for f in dataclasses.fields(cfg):
+            flag = f"--{prefix}.{f.name.replace('_', '-')}"
+            assert actions[flag].dest == f"{prefix}.{f.name}", flag
+            assert not getattr(actions[flag], "renamed_to", None)
+
+
+@pytest.mark.parametrize("command, old, new, value, where", [
+    ("reconstruct", "--mvs", "--method", "sweep", ("mvs", "method")),
+    ("reconstruct", "--mvs.mvs", "--mvs.method", "sweep", ("mvs", "method")),
+    ("reconstruct", "--fusion-memory", "--memory-gb", "3.5", ("fusion", "memory_gb")),
+    ("reconstruct", "--fusion.fusion-memory", "--fusion.memory-gb", "3.5", ("fusion", "memory_gb")),
+    ("mvs", "--mvs", "--method", "sweep", ("mvs", "method")),
+    ("fuse", "--fusion-memory", "--memory-gb", "3.5", ("fusion", "memory_gb")),
+])
+def test_a_former_flag_still_works_and_names_the_new_one(parser, caplog, command, old, new, value, where):
+    import logging
+
+    from photorecon.cli.config import config_from_args
+    from photorecon.depth.mvs import MVSConfig
+    from photorecon.fusion import FusionConfig
+
+    cls = {"mvs": MVSConfig, "fusion": FusionConfig}[where[0]]
+    positional = ["I", "-o", "O"] if command == "reconstruct" else ["D", "-o", "O"]
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        by_old = config_from_args(cls, parser.parse_args([command, *positional, old, value]))
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == [f"{old} is now {new} (the former name still works, for now)"]
+    assert getattr(by_old, where[1]) == type(getattr(cls(), where[1]))(value) != getattr(cls(), where[1])
+    caplog.clear()
+    by_new = config_from_args(cls, parser.parse_args([command, *positional, new, value]))
+    assert by_new == by_old and not caplog.records  # the new name: no warning
+    # the former name is hidden from the help, the new one shown
+    full = parser.command_parser(command).format_help(full=True)
+    assert f"{old} " not in full.replace(",", " ") and new in full
+
+
+@pytest.mark.parametrize("text, old, new, where", [
+    ("mvs = 'sweep'\n", "mvs", "method", ("mvs", "method", "sweep")),
+    ("[mvs]\nmvs = 'sweep'\n", "[mvs] mvs", "[mvs] method", ("mvs", "method", "sweep")),
+    ("fusion_memory = 3.5\n", "fusion_memory", "memory_gb", ("fusion", "memory_gb", 3.5)),
+    ("[fusion]\nfusion_memory = 3.5\n", "[fusion] fusion_memory", "[fusion] memory_gb", ("fusion", "memory_gb", 3.5)),
+])
+def test_a_former_settings_file_key_still_works_and_names_the_new_one(parser, caplog, tmp_path, text, old, new,
+                                                                      where):
+    import logging
+
+    from photorecon.cli.config import apply_settings_file
+
+    f = tmp_path / "s.toml"
+    f.write_text(text)
+    args = parser.parse_args(["reconstruct", "I", "-o", "O"])
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        apply_settings_file(parser.command_parser("reconstruct"), args, f)
+        cfgs = _configs_of(args)
+    assert getattr(getattr(cfgs, where[0]), where[1]) == where[2]
+    assert [r.getMessage() for r in caplog.records] == [
+        f"--config {f}: {old} is now {new} (the former name still works, for now)"]
+
+
+def _configs_of(args):
+    from photorecon.cli.commands import stage_configs_from_args
+
+    return stage_configs_from_args(args)
+
+
+def test_a_former_flag_on_the_command_line_warns_in_one_line(tmp_path):
+    """The command line: one line on stderr, before the command's own error (here: no image folder, exit 4);
+    -q leaves it out."""
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-m", "photorecon", "reconstruct", str(tmp_path / "none"), "-o", str(tmp_path / "o"),
+            "--mvs", "sweep"]
+    res = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 4 and err[0] == "--mvs is now --method (the former name still works, for now)"
+    assert len(err) == 2 and err[1].startswith("photorecon reconstruct: error:")
+    res = subprocess.run(argv + ["-q"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 4 and len(res.stderr.strip().splitlines()) == 1
+
+
+# --- tuning settings --------------------------------------------------------------------------------------
+
+
+def test_tuning_settings_are_left_out_of_help_all_and_still_set(parser, tmp_path):
+    from photorecon.cli.config import TUNING, apply_settings_file
+
+    sp = parser.command_parser("reconstruct")
+    full = sp.format_help(full=True)
+    assert f"{len(TUNING['mvs'])} tuning settings" in full and "docs/cli.md" in full
+    for name in TUNING["mvs"]:
+        assert f"--{name.replace('_', '-')}" not in full and f"--mvs.{name.replace('_', '-')} " not in full, name
+    assert "--pm-iterations" in full and "--method" in full  # what a user sets stays
+    # still set by a flag and by a settings file
+    cfgs = _configs_of(parser.parse_args(["reconstruct", "I", "-o", "O", "--pm-sigma-color", "0.3"]))
+    assert cfgs.mvs.pm_sigma_color == 0.3
+    f = tmp_path / "s.toml"
+    f.write_text("[mvs]\ngeom_weight = 0.5\npm_fine_views = 'current'\n")
+    args = parser.parse_args(["reconstruct", "I", "-o", "O"])
+    apply_settings_file(sp, args, f)
+    cfgs = _configs_of(args)
+    assert (cfgs.mvs.geom_weight, cfgs.mvs.pm_fine_views) == (0.5, "current")
+
+
+def test_tuning_settings_are_documented_in_their_own_section():
+    from photorecon.cli.config import TUNING
+
+    doc = (ROOT / "docs" / "cli.md").read_text()
+    section = doc.split("## photorecon reconstruct\n", 1)[1].split("\n## ", 1)[0].split("### Tuning settings", 1)
+    assert len(section) == 2, "no Tuning settings section for reconstruct"
+    before, tuning = section
+    for name in TUNING["mvs"]:
+        listed = re.compile(rf"`--{name.replace('_', '-')}[ ,`]")
+        assert listed.search(tuning) and not listed.search(before), name

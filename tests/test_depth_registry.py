@@ -53,7 +53,7 @@ def test_the_registry_holds_every_depth_method_and_the_settings_read_it():
             assert m.SOURCE and callable(m.run_stage) and callable(m.check) and callable(m.inputs)
     with pytest.raises(BadArgumentError, match="depth method: expected one of patchmatch, sweep, mono, given, got 'nope'"):
         method("nope")
-    with pytest.raises(BadArgumentError, match="MVSConfig.method .*--mvs.*: expected one of patchmatch, sweep, got 'truth'"):
+    with pytest.raises(BadArgumentError, match="MVSConfig.method .*--method.*: expected one of patchmatch, sweep, got 'truth'"):
         MVSConfig(method="truth")
 
 

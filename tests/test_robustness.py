@@ -863,18 +863,18 @@ def test_eval_of_a_mesh_with_nan_vertices_names_them_and_exits_3(tmp_path, capsy
 
 def test_too_little_confirmed_depth_fails_loudly_with_its_own_message(blob_small, tmp_path, capsys):
     """A depth stage that confirms depth in a small fraction of the pixels makes a fragment of a mesh: exit 6 with
-    a line saying how little, instead of a 'successful' run; --mvs sweep (a rough preview) says so."""
+    a line saying how little, instead of a 'successful' run; --method sweep (a rough preview) says so."""
     out = tmp_path / "out"
     argv = ["reconstruct", str(blob_small / "images"), "--poses", str(blob_small / "sparse" / "0"), "-o", str(out),
-            "--mvs", "sweep", "--min-depth-fraction", "0.5"]
+            "--method", "sweep", "--min-depth-fraction", "0.5"]
     assert main(argv) == 6
     err = capsys.readouterr().err
-    assert "--mvs sweep is a rough preview" in err  # the warning, before the depth stage runs
+    assert "--method sweep is a rough preview" in err  # the warning, before the depth stage runs
     line = _error_line(err)
     assert line.startswith("photorecon reconstruct: error: depth: only ")
     mean = float(line.split("only ")[1].split("%")[0])
     assert 0 < mean < 50 and "of the 12 views have a confirmed depth" in line and "at least 50% needed" in line
-    assert "use --mvs patchmatch (the default)" in line
+    assert "use --method patchmatch (the default)" in line
     assert not (out / "depth").exists() and not (out / "mesh.ply").exists()
 
 

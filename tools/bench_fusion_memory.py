@@ -2,7 +2,7 @@
 """Fusion memory as the photo count grows: the fusion and preview stages of ``reconstruct`` (``load_frames`` ->
 TSDF -> cleaning -> export -> preview) on one facade's depth maps, with its views repeated to N = 10, 20, 40, 80
 frames (a repeated view is a new frame with the same camera and depth map: the surface stays, the input grows),
-against the fusion's memory budget (``--fusion-memory``, FusionConfig.memory_gb: ``--set memory_gb=1.0``).
+against the fusion's memory budget (``--memory-gb``, FusionConfig.memory_gb: ``--set memory_gb=1.0``).
 
 Each N runs in a fresh process: peak resident memory of the fusion stage and of the preview stage
 (``resources.measure``, as report.json has them), wall seconds and CPU seconds (user + system, all threads),

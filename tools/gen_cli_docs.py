@@ -127,6 +127,12 @@ def _group_table(group, prog: str, common: set[str]) -> list[str]:
     for action in group._group_actions:
         if _skip(action) or set(action.option_strings) & common:  # -q / -v: listed once, for every command
             continue
+        if getattr(action, "tuning_help", None):  # listed under "Tuning settings"
+            continue
+        if getattr(action, "renamed_to", None):  # a former name
+            rows.append(f"| {_cell(_invocation(action))} | former name of `{action.renamed_to}`: still works, with a "
+                        "warning naming the new one (also as a --config key) |")
+            continue
         help_ = _expand_help(action, prog)
         if action.choices and not action.option_strings:
             help_ += f" (one of: {', '.join(map(str, action.choices))})"
@@ -140,6 +146,24 @@ def _group_table(group, prog: str, common: set[str]) -> list[str]:
     if not rows:
         return []
     return [f"### {group.title[:1].upper()}{group.title[1:]}", "", "| option | what it does |", "|---|---|", *rows, ""]
+
+
+def _tuning_table(parser, prog: str) -> list[str]:
+    """The tuning settings of a command (``photorecon.cli.config.TUNING``: hidden from --help-all)."""
+    rows = []
+    for action in parser._actions:
+        text = getattr(action, "tuning_help", None)
+        if text:
+            saved, action.help = action.help, text
+            try:
+                rows.append(f"| {_cell(_invocation(action))} | {_cell(_expand_help(action, prog))} |")
+            finally:
+                action.help = saved
+    if not rows:
+        return []
+    return ["### Tuning settings", "", "Settings only benchmarks change (their defaults were measured, "
+            "[benchmarks.md](benchmarks.md)); `--help-all` leaves them out. A flag or a `--config` key sets them as "
+            "any other.", "", "| option | what it does |", "|---|---|", *rows, ""]
 
 
 def _text(text: str | None, prog: str) -> str:
@@ -174,6 +198,7 @@ def render() -> str:
         out += ["```", _usage(name, sp), "```", ""]
         for group in sp._action_groups:
             out += _group_table(group, sp.prog, common)
+        out += _tuning_table(sp, sp.prog)
     return "\n".join(out).rstrip() + "\n"
 
 

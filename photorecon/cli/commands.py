@@ -132,7 +132,7 @@ def mvs(sub):
 
     p = _depth_parser(sub, "mvs", MVSConfig, _run_mvs,
                       help="dense depth by multi-view stereo on the CPU (no weights, no GPU)",
-                      description="PatchMatch stereo (or --mvs sweep: a plane sweep) from the dataset's cameras "
+                      description="PatchMatch stereo (or --method sweep: a plane sweep) from the dataset's cameras "
                                   "(sparse/0 or transforms.json) and sparse points; writes depth/NAME.npy, "
                                   "NAME.conf.npy, NAME.normal.npy and NAME.png to DATASET/depth (or -o DIR).")
     _masks_arg(p, "no depth there (default: DATASET/masks, else the images' alpha channel)")

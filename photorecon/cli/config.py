@@ -64,6 +64,22 @@ class BooleanFlag(_Given, argparse.BooleanOptionalAction):
     """``--flag/--no-flag``, recorded as given."""
 
 
+class _Renamed(_Store):
+    """A flag's former name: stores like the flag and records ``(old, new, dest)`` in ``namespace._renamed`` so that
+    ``config_from_args`` says, once and in one line, what it is called now."""
+
+    new_plain = new_prefixed = ""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        super().__call__(parser, namespace, values, option_string)
+        new = self.new_prefixed if option_string and "." in option_string else self.new_plain
+        renamed = getattr(namespace, "_renamed", None)
+        if renamed is None:
+            renamed = []
+            setattr(namespace, "_renamed", renamed)
+        renamed.append((option_string, new, self.dest))
+
+
 def given(args: argparse.Namespace) -> set[str]:
     """The ``dest`` of every option given on the command line (or by a ``--config`` file)."""
     return getattr(args, "_given", None) or set()
@@ -161,9 +177,12 @@ class Parser(argparse.ArgumentParser):
         return " ".join(parts)
 
     def format_help(self, full: bool = False) -> str:  # type: ignore[override]
+        tuning = sum(1 for a in self._actions if getattr(a, "tuning_help", None))
+        note = (f"\n{tuning} tuning settings, which only benchmarks change, are not listed here; docs/cli.md lists them "
+                "(Tuning settings)\n" if tuning else "")
         hidden = self.hidden_actions()
         if not hidden:
-            return super().format_help()
+            return super().format_help() + note
         saved_usage = self.usage
         self.usage = self._short_usage()
         saved = [(a, a.help) for a in self._actions]
@@ -183,7 +202,7 @@ class Parser(argparse.ArgumentParser):
                 a.help = h
         if not full:
             text += f"\n{len(hidden)} more options, every stage's settings: {self.prog} --help-all\n"
-        return text
+        return text + (note if full else "")
 
     def print_help(self, file=None, full: bool = False):  # type: ignore[override]
         import sys
@@ -191,11 +210,34 @@ class Parser(argparse.ArgumentParser):
         (file or sys.stdout).write(self.format_help(full=full))
 
 
+# A field's flag is its name. Flags renamed to their field's name, by config prefix: former name -> field. The
+# former flag (plain and prefixed) and the former --config key still work, hidden, with a one-line pointer to the
+# new name; docs/cli.md lists them.
+RENAMED: dict[str, dict[str, str]] = {
+    "mvs": {"mvs": "method"},  # --mvs NAME: --method NAME (--mvs.method)
+    "fusion": {"fusion_memory": "memory_gb"},  # --fusion-memory GB: --memory-gb GB (--fusion.memory-gb)
+}
+
+# Tuning settings: what only benchmarks set (their defaults were measured; docs/benchmarks.md). Not listed by
+# --help-all; docs/cli.md lists them under "Tuning settings"; a flag or a --config key sets them as any other.
+# A config may mark such a field itself with metadata={"tuning": True}.
+TUNING: dict[str, tuple[str, ...]] = {
+    "mvs": ("pm_reuse_cost", "pm_same_depth", "pm_same_normal_deg", "pm_carry_views", "pm_final_own_round",
+            "pm_sigma_color", "geom_weight", "consistency_confidence", "textured_min_confidence",
+            "pm_skip_consistent", "pm_fine_views", "pm_fine_refine"),
+}
+
+
+def is_tuning(prefix: str, f: dataclasses.Field) -> bool:
+    """``f`` (of the config with CLI prefix ``prefix``) is a tuning setting (``TUNING``)."""
+    return bool(f.metadata.get("tuning")) or f.name in TUNING.get(prefix, ())
+
+
 def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), defaults=None) -> None:
-    """One ``--PREFIX.FLAG`` (and, when free, ``--FLAG``) per dataclass field of ``config_cls`` (or
-    ``metadata['flag']``); help from ``field(metadata={'help': ...})``, choices from ``Literal`` annotations,
-    ``--flag/--no-flag`` for booleans, ranges from the metadata (module docstring), a text setting's check from
-    ``metadata['parse']`` (argparse's ``type``). Default values come from
+    """One ``--PREFIX.NAME`` (and, when free, ``--NAME``) per dataclass field ``NAME`` of ``config_cls``; help
+    from ``field(metadata={'help': ...})``, choices from ``Literal`` annotations, ``--flag/--no-flag`` for
+    booleans, ranges from the metadata (module docstring), a text setting's check from ``metadata['parse']``
+    (argparse's ``type``); tuning settings hidden, former names as aliases (``_finish``). Default values come from
     the instance ``defaults`` when given (a stage whose caller overrides a config default, e.g. the pipeline's
     wider TSDF truncation), else the class. ``parser`` may be an argument group: name clashes are checked
     across the whole parser."""
@@ -218,7 +260,7 @@ def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), default
         origin, args = typing.get_origin(tp), typing.get_args(tp)
         if tp is bool:
             kw["help"] = f"{help_} (default: {'on' if default else 'off'})"
-            parser.add_argument(*flags, action=BooleanFlag, **kw)
+            _finish(parser, parser.add_argument(*flags, action=BooleanFlag, **kw), prefix, f)
             continue
         kind, is_tuple = field_kind(tp)
         rng = Ranged.from_metadata(kind, f.metadata) if kind is not None else None
@@ -247,7 +289,43 @@ def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), default
         if origin is not typing.Literal:  # choices show as {a,b,c}
             kw["metavar"] = f.metadata.get("metavar") or (
                 "X,Y,Z,..." if is_tuple else "N" if kind is int else "X" if kind is float else "TEXT")
-        parser.add_argument(*flags, **kw)
+        _finish(parser, parser.add_argument(*flags, **kw), prefix, f, kw)
+
+
+def _finish(parser, action: argparse.Action, prefix: str, f: dataclasses.Field, kw: dict | None = None) -> None:
+    """A config field's flag once added: hidden when it is a tuning setting (its help kept as ``tuning_help``
+    for docs/cli.md), and its former names (``RENAMED``) added as hidden aliases."""
+    action.tuning_help = None
+    if is_tuning(prefix, f):
+        action.tuning_help, action.help = action.help, argparse.SUPPRESS
+    taken = parser._option_string_actions
+    plain = field_flag(f)
+    for old, name in RENAMED.get(prefix, {}).items():
+        if name != f.name:
+            continue
+        if kw is None:  # pragma: no cover - no boolean was renamed
+            raise TypeError(f"{f.name}: a renamed boolean needs its --no- form too")
+        old_plain = "--" + old.replace("_", "-")
+        aliases = [o for o in (old_plain, f"--{prefix}.{old_plain[2:]}") if o not in taken]
+        if aliases:
+            cls = type("_Renamed", (_Renamed,), {"new_plain": plain if plain in action.option_strings else
+                                                 f"--{prefix}.{plain[2:]}", "new_prefixed": f"--{prefix}.{plain[2:]}"})
+            alias = parser.add_argument(*aliases, **{**kw, "help": argparse.SUPPRESS}, action=cls)
+            alias.renamed_to = cls.new_plain
+
+
+def renamed_warnings(args: argparse.Namespace, prefix: str) -> None:
+    """Log, once each, the former flags of config ``prefix`` that the command line used."""
+    import logging
+
+    left = []
+    for old, new, dest in getattr(args, "_renamed", None) or ():
+        if dest.startswith(prefix + "."):
+            logging.getLogger("photorecon").warning("%s is now %s (the former name still works, for now)", old, new)
+        else:
+            left.append((old, new, dest))
+    if getattr(args, "_renamed", None):
+        args._renamed = left
 
 
 def _parse_tuple(text: str) -> tuple[float, ...]:
@@ -274,6 +352,7 @@ def config_from_args(config_cls, args: argparse.Namespace, **overrides):
     """The config ``config_cls`` from the values ``add_config_arguments`` parsed into ``args`` (plus
     ``overrides``), checked by ``validate`` (which a config's own ``__post_init__`` runs too)."""
     prefix = config_prefix(config_cls)
+    renamed_warnings(args, prefix)
     values_in = vars(args)
     values = {f.name: values_in[_dest(prefix, f.name)] for f in dataclasses.fields(config_cls)
               if _dest(prefix, f.name) in values_in}
@@ -326,6 +405,7 @@ def apply_settings_file(parser: argparse.ArgumentParser, args: argparse.Namespac
     ``max_size = 800``), a table per stage prefix holds that stage's settings (``[mvs]`` ``max_size = 800``,
     ``[fusion]`` ``voxel_size = 0.002``). Flags given on the command line win. Every key is checked like its
     flag; an unknown key is an error. Returns the dests set."""
+    import logging
     import tomllib
     from pathlib import Path
 
@@ -353,6 +433,11 @@ def apply_settings_file(parser: argparse.ArgumentParser, args: argparse.Namespac
             raise BadArgumentError(f"--config {path}: {name}: no such setting for '{parser.prog}' "
                                    f"(see {parser.prog} --help-all)")
         parsed = _file_value(action, value, f"--config {path}: {name}")
+        if isinstance(action, _Renamed):
+            new = action.new_prefixed if "." in option else action.new_plain
+            key = f"[{new[2:].split('.')[0]}] {new.split('.', 1)[1]}" if "." in new else new[2:]
+            logging.getLogger("photorecon").warning("--config %s: %s is now %s (the former name still works, for "
+                                                    "now)", path, name, key.replace("-", "_"))
         if action.dest in user:
             continue  # the command line wins
         setattr(args, action.dest, parsed)

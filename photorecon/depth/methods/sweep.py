@@ -1,4 +1,4 @@
-"""Plane-sweep stereo as a depth method (``--mvs sweep``, a fast preview): one reference image and its sources in,
+"""Plane-sweep stereo as a depth method (``--method sweep``, a fast preview): one reference image and its sources in,
 a z-depth map and its confidence out (ZNCC over fronto-parallel planes uniform in inverse depth, the best
 ``best_k`` sources aggregated, sub-plane refinement); one task per view. Its settings are ``MVSConfig``'s
 ``n_depths``, ``window`` and ``best_k``.
@@ -19,9 +19,9 @@ NAME = "sweep"
 # the sweep's planes get coarser as its range grows: a narrow range around the sparse points
 DEPTH_RANGE = (1 / 1.1, 1.1)
 SEEDS = False
-NOTE = ("depth: --mvs sweep is a rough preview (fronto-parallel planes): its mesh is far less complete and accurate "
-        "than --mvs patchmatch's; --quality preview is the quick look that keeps PatchMatch")
-HINT = "--mvs sweep is a rough preview; use --mvs patchmatch (the default)"
+NOTE = ("depth: --method sweep is a rough preview (fronto-parallel planes): its mesh is far less complete and accurate "
+        "than --method patchmatch's; --quality preview is the quick look that keeps PatchMatch")
+HINT = "--method sweep is a rough preview; use --method patchmatch (the default)"
 
 
 def tasks(ctx: work.MVSContext) -> tuple[list[Task], dict[str, str]]:

@@ -1,4 +1,4 @@
-"""PatchMatch multi-view stereo as a depth method (``--mvs patchmatch``, the default): per view its rounds, coarse
+"""PatchMatch multi-view stereo as a depth method (``--method patchmatch``, the default): per view its rounds, coarse
 to fine, each one task (round r of a view after round r - 1 of itself and, with the geometric term, of its
 sources). Its settings are ``MVSConfig``'s ``pm_*`` fields, ``geom_*``, ``planar_prior``, ``min_texture`` and
 ``texture_rel``.
