@@ -34,6 +34,7 @@ from __future__ import annotations
 import logging
 import platform
 import shutil
+import threading
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -416,12 +417,17 @@ def asdict_shallow(cfgs: StageConfigs) -> dict:
 
 
 class _WarningCollector(logging.Handler):
+    """The warnings of one run for its report: those logged by the thread that made it (the run's), not those of
+    another run in another thread of the same process."""
+
     def __init__(self, sink: list):
         super().__init__(logging.WARNING)
         self.sink = sink
+        self.thread = threading.get_ident()
 
     def emit(self, record):
-        self.sink.append(record.getMessage())
+        if record.thread == self.thread:
+            self.sink.append(record.getMessage())
 
 
 def _check_depth_written(layout: Layout, count: int, names: list[str] | None = None) -> None:

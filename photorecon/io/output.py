@@ -41,6 +41,7 @@ import os
 import shutil
 import socket
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -320,7 +321,16 @@ def _remove_if_unused(out: Path) -> None:
 
 
 # --- the lock ---------------------------------------------------------------------------------------------------
-_HELD: dict[str, list] = {}  # resolved folder -> [fd, depth]: a run locking a folder it already holds nests
+_HELD: dict[str, list] = {}  # resolved folder -> [fd, depth, thread]: a run locking a folder it already holds nests
+
+
+def _held_by_other_thread(folder: Path, key: str) -> None:
+    """``OutputError`` when a run in another thread of this process holds the lock ``key`` (a folder's lock is
+    the process's: only the thread that took it may nest)."""
+    held = _HELD.get(key)
+    if held is not None and held[2] != threading.get_ident():
+        raise OutputError(f"output folder {folder} is in use by another photorecon run in this process (another "
+                          "thread); wait for it to finish or choose another output folder")
 
 
 def _describe(info: dict) -> str:
@@ -366,6 +376,7 @@ def _check_not_busy(folder: Path) -> None:
     """``OutputError`` naming the run when another live run holds ``folder``'s lock; writes nothing."""
     path = folder / LOCK
     if str(_resolve(path)) in _HELD:
+        _held_by_other_thread(folder, str(_resolve(path)))
         return
     try:
         fd = os.open(path, os.O_RDONLY)
@@ -464,6 +475,7 @@ def output_lock(folder: str | Path, path: str | Path | None = None, warnings: li
                           "choose a writable folder") from None
     key = str(_resolve(path))
     if key in _HELD:
+        _held_by_other_thread(folder, key)
         _HELD[key][1] += 1
         try:
             yield folder
@@ -471,7 +483,7 @@ def output_lock(folder: str | Path, path: str | Path | None = None, warnings: li
             _HELD[key][1] -= 1
         return
     fd = _acquire(folder, path, warnings)
-    _HELD[key] = [fd, 1]
+    _HELD[key] = [fd, 1, threading.get_ident()]
     try:
         yield folder
     finally:

@@ -31,6 +31,7 @@ from ..io.colmap import sparse_from_pycolmap
 from ..io.colmap_text import SparseModel, read_colmap_text, write_colmap_text
 from ..io.space import check_space
 from ..layout import Layout
+from ..progress import running
 from ..stages import Stages, atomic_dir, fingerprint, replace_dir
 from .sfm_inputs import _exif, _undistort_masks, _upscaled_copies, check_sfm_masks, sfm_masks, write_colmap_masks
 from ..fields import check_config, expect_config
@@ -201,7 +202,8 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
     check_space(database, sum(features_bytes(images_dir, cam["images"], cfg, int(cam.get("sift_upscale", 1))) - MB
                               for cam in cameras) + MB)
     threads = sift_threads(cameras, cfg)  # as many SIFT threads as fit in memory (OutOfMemoryError: not one)
-    with atomic_path(database) as tmp, tempfile.TemporaryDirectory(dir=database.parent, prefix=".upscaled") as up:
+    with atomic_path(database) as tmp, tempfile.TemporaryDirectory(dir=database.parent, prefix=".upscaled") as up, \
+            running(f"SfM feature extraction ({sum(len(c['images']) for c in cameras)} photos)"):
         for i, cam in enumerate(cameras):
             s = int(cam.get("sift_upscale", 1))
             src, masks, params = images_dir, mask_dir, cam["params"]
@@ -396,7 +398,7 @@ def match(features: Path, database: Path, matching: str, cfg: SfMConfig, guided:
 
     pycolmap = _pycolmap()
     check_space(database, 2 * features.stat().st_size + MB)  # a copy of the features, then the matches
-    with atomic_path(database) as tmp:
+    with atomic_path(database) as tmp, running(f"SfM matching ({matching})"):
         shutil.copyfile(features, tmp)
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.threads
@@ -454,10 +456,19 @@ RELAXED_MAPPING = (
 )
 
 
+# Incremental mapping runs on one thread, whatever --threads: bundle adjustment's threads sum in the order they
+# finish, so the same matches gave cameras apart in their last digits (48 synthetic ring views at 320x240, two
+# threads: 3 different models in 3 runs, poses 2e-15 apart) and, from there, now and then another model (another
+# coordinate frame, another mesh). On one thread: the same model, byte for byte, 3 runs of 3, whatever the
+# output folder's history; 9.3-11.0 CPU s against 11.4-12.2 on two threads (2026-11-28, 2 shared cores). On a
+# machine with many cores the mapping's wall time grows towards its CPU time. Global mapping keeps its threads.
+MAPPER_THREADS = 1
+
+
 def _incremental_options(pycolmap, cfg: SfMConfig, fixed_intrinsics: bool, relaxed: dict | None = None):
     opt = pycolmap.IncrementalPipelineOptions()
     opt.random_seed = cfg.seed
-    opt.num_threads = cfg.threads
+    opt.num_threads = MAPPER_THREADS
     if fixed_intrinsics:
         opt.ba_refine_focal_length = False
         opt.ba_refine_principal_point = False
@@ -478,7 +489,8 @@ def map(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed
     pycolmap.set_random_seed(cfg.seed)
     check_space(model_dir, database.stat().st_size // 2 + MB)
     n = sum(1 for _ in images_dir.iterdir())
-    with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp:
+    with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp, \
+            running(f"SfM {mapper} mapping ({n} photos)"):
         if mapper == "global":
             gopt = pycolmap.GlobalPipelineOptions()
             gopt.random_seed = cfg.seed
@@ -535,7 +547,7 @@ def undistort(model_dir: Path, images_dir: Path, out: Path, model_out: Path, mas
     pycolmap = _pycolmap()
     layout = Layout(out)
     check_space(layout.images, 2 * sum(f.stat().st_size for f in images_dir.iterdir()) + MB)
-    with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und:
+    with tempfile.TemporaryDirectory(dir=out, prefix=".undistort") as und, running("SfM undistortion"):
         pycolmap.undistort_images(und, str(model_dir), str(images_dir))
         model = sparse_from_pycolmap(pycolmap.Reconstruction(f"{und}/sparse"))
         masks = Path(und) / "masks"
