@@ -94,7 +94,8 @@ def test_compiled_consistency_filter_matches_numpy(blob_fusion, plane_px):
     """The multi-view filter's compiled count (pinhole cameras) equals the numpy one (any camera model) on true depth
     maps with 0.5% noise and holes: the same agreeing views per pixel and the same reprojection errors; with the
     plane test too (normals from the true depth's neighbours), where it confirms more pixels than the point test."""
-    from photorecon.depth.mvs import DepthResult, _consistency_count_any, _consistency_count_pinhole
+    from photorecon.depth.config import DepthResult
+    from photorecon.depth.filter import _consistency_count_any, _consistency_count_pinhole
 
     ds = Dataset.open(blob_fusion)
     rng = np.random.default_rng(1)

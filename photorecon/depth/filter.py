@@ -135,20 +135,6 @@ def _filter_config(cfg: MVSConfig, n_views: int) -> MVSConfig:
     return dataclasses.replace(cfg, reproj_px=cfg.pair_reproj_px, plane_reproj_px=0.0)
 
 
-def geometric_filter(results: dict[str, DepthResult], cfg: MVSConfig, stats: dict | None = None) -> dict[str, np.ndarray]:
-    """Keep depths that at least ``min_consistent`` other views confirm (``consistency_count`` per view); returns
-    the per-view count of agreeing views. ``stats`` gets the mean forward-backward reprojection error (pixels)
-    of the agreeing pairs."""
-    counts = {}
-    err_sum, err_n = 0.0, 0
-    for name, r in results.items():
-        counts[name], e, n = consistency_count(r, results, cfg)
-        err_sum, err_n = err_sum + e, err_n + n
-    if stats is not None:
-        stats["mean_reprojection_px"] = err_sum / err_n if err_n else float("nan")
-    return counts
-
-
 def _filter_plan(model, views: dict[str, tuple], cfg: MVSConfig) -> dict[str, list[str]]:
     """Per planned view, the views its consistency filter checks: its matching sources, then the next best ranked
     (``select_sources``) up to ``filter_sources`` in all, among the planned views."""

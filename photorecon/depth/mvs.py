@@ -6,13 +6,10 @@ stage (which views, their plan, the task graph, the report). For each reference 
 2. **Depth range** from the sparse points seen in the view (PatchMatch: 1st percentile x 0.6 to 99th x 1.25;
    the sweep, whose planes get coarser as the range grows: 1st / 1.1 to 99th x 1.1); for a model
    without any sparse point, from where the cameras' optical axes converge.
-3. **Depth** by the method ``MVSConfig.method`` names (``methods``: PatchMatch, ``methods/patchmatch``; or a
-   plane sweep, ``methods/sweep.py``). The **plane sweep** runs over ``n_depths`` fronto-parallel planes uniform in inverse depth: each source image is
-   warped onto the reference with the plane's homography (``cv2.warpPerspective``); the matching cost is
-   ZNCC over a ``window`` box (box filters), aggregated as the mean of the best ``best_k`` sources
-   (occlusion-robust); winner-take-all, then a parabola through the neighbouring scores for sub-plane depth.
-   Confidence = the aggregated ZNCC of the winner (TSDF fusion uses it as the pixel's weight). Work happens
-   at most ``max_size`` pixels wide.
+3. **Depth** by the method ``MVSConfig.method`` names, from the registry (``methods``): PatchMatch
+   (``methods/patchmatch``, per-pixel planes) or a plane sweep (``methods/sweep.py``: ``n_depths`` fronto-parallel
+   planes uniform in inverse depth, ZNCC over a ``window`` box, the best ``best_k`` sources; confidence = the
+   aggregated ZNCC of the winner, TSDF fusion's weight), at most ``max_size`` pixels wide.
 4. **Filtering**: confidence threshold (and, optionally, textureless reference windows), then geometric
    consistency: each depth is re-projected into the depth maps of its source views and of the next best ranked
    views (``filter_sources`` in all: a surface hidden from some sources is confirmed by the views that see it)
@@ -50,8 +47,7 @@ from ..tasks import IN_PROCESS, Executor
 from ..fields import expect_config
 from . import work
 from .config import MVS_PRESETS, DepthResult, MVSConfig  # noqa: F401 (re-exported)
-from .filter import (PLANE_MAX_ANGLE_DEG, _consistency_count_any, _consistency_count_pinhole,  # noqa: F401
-                     _filter_config, _filter_plan, _nearest_pixel, consistency_count, geometric_filter)
+from .filter import _filter_config, _filter_plan, consistency_count  # noqa: F401 (re-exported)
 from .graph import mvs_tasks, run_task
 from .methods import method
 from .select import camera_depth_range, depth_range, select_sources

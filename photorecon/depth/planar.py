@@ -14,8 +14,8 @@ ACMP triangulates the confident pixels in the image and uses each triangle's pla
    surfaces) or when its plane's normal is more than ``MAX_ANGLE_DEG`` from any of its vertices' own
    PatchMatch normals (the vertices are not on one plane: a crease, a depth step).
 3. **Injection** (``inject_prior``): at the pixels whose hypothesis is not confident, the prior plane (the
-   triangle's depth at that pixel, its normal) is scored with the round's own cost (``_pm_kernels.initial_cost``:
-   the same photometric + geometric cost, the same sources) and replaces the current plane when its cost is
+   triangle's depth at that pixel, its normal) is scored with the round's own cost
+   (``methods.patchmatch.kernels.initial_cost``: the same photometric + geometric cost, the same sources) and replaces the current plane when its cost is
    below ``ACCEPT_COST`` and not more than ``MARGIN`` above the current one's. The round's propagation then
    spreads the injected planes and its refinement perturbs them, so a prior only has to be roughly right
    somewhere in a region. The same is done once more after the last round's iterations.

@@ -25,9 +25,10 @@ Two kinds of method:
 * **whole stage** (``"stage"``): writes the depth folder itself, chosen by ``reconstruct``'s settings
   (``--depth-model``, ``--depth FOLDER``). Its module has ``SOURCE`` (the name the depth stage records),
   ``selected(run)``, ``check(run)`` (the input checks before anything is written), ``inputs(run, fingerprint)``
-  (what the stage's key hashes, with the stage runner's ``fingerprint`` of files) and ``run_stage(dataset, run, out_dir, executor, work, factor) -> dict`` (the stage's
-  facts, with ``"views"``: the depth maps written; ``executor()``: the executor of its tasks, made, a cluster
-  started, when first called; ``work``: its work folder; ``factor``: the metric scale applied to given cameras).
+  (what the stage's key hashes, with the stage runner's ``fingerprint`` of files) and
+  ``run_stage(dataset, run, out_dir, executor, work, factor) -> dict`` (the stage's facts, with ``"views"``: the
+  depth maps written; ``executor()``: the executor of its tasks, made (a cluster started) when first called;
+  ``work``: its work folder; ``factor``: the metric scale applied to given cameras).
 """
 from __future__ import annotations
 
