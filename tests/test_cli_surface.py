@@ -209,3 +209,16 @@ def test_tuning_settings_are_documented_in_their_own_section():
     for name in TUNING["mvs"]:
         listed = re.compile(rf"`--{name.replace('_', '-')}[ ,`]")
         assert listed.search(tuning) and not listed.search(before), name
+
+
+def test_evaluation_is_callable_without_the_command_line():
+    from photorecon.evaluate import EvalRequest, evaluate, format_report
+
+    for req, what in ((EvalRequest(), "give --mesh and --gt"), (EvalRequest(mesh="m.ply"), "--mesh and --gt go"),
+                      (EvalRequest(ref="r"), "--poses and --ref go together")):
+        with pytest.raises(BadArgumentError, match=what):
+            evaluate(req)
+    text = format_report({"poses": {"registered": 3, "reference_count": 4, "rot_mean_deg": 0.1, "rot_median_deg": 0.1,
+                                    "rot_max_deg": 0.2, "center_mean": 0.01, "center_median": 0.01,
+                                    "center_max": 0.02, "center_mean_rel": 0.001}})
+    assert text.splitlines()[0] == "poses: 3 of 4 reference images matched" and len(text.splitlines()) == 3
