@@ -61,7 +61,7 @@ def test_the_registry_holds_every_depth_method_and_the_settings_read_it():
 def test_the_reconstruct_settings_select_a_whole_stage_method_or_none():
     from photorecon.pipeline import ReconstructConfig
 
-    assert stage_method(ReconstructConfig()) is None  # MVS, with --mvs METHOD
+    assert stage_method(ReconstructConfig()) is None  # MVS, with --method METHOD
     assert stage_method(ReconstructConfig(depth="somewhere")).SOURCE == "folder"
     assert stage_method(ReconstructConfig(depth_model="m.onnx")).SOURCE == "mono"
 

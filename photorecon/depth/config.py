@@ -24,7 +24,7 @@ class MVSConfig:
     """Settings of the multi-view stereo stage (``photorecon mvs``)."""
 
     # the registry's per-view methods (depth/methods/__init__.py), read when the hints are evaluated
-    method: Literal[method_names("view")] = field(default="patchmatch", metadata={"flag": "--mvs", "help": view_help()})
+    method: Literal[method_names("view")] = field(default="patchmatch", metadata={"help": view_help()})
     n_sources: int = field(default=8, metadata={"help": "source views matched per reference view", "range": (1, 256)})
     max_size: int = field(default=1600, metadata={"help": "working resolution: longest image side in pixels (0 = full resolution)", "range": (64, 65536), "also": (0,)})
     min_confidence: float = field(default=0.2, metadata={"help": "drop depths whose confidence (1 - matching cost, 0..1) is below this before the geometric filter (0 = the filter alone decides)", "range": (0.0, 1.0)})

@@ -1,12 +1,12 @@
 """The depth methods, in one registry (``REGISTRY``): a method is a module of its own plus one line here. The
-settings (``MVSConfig.method``'s choices and help, hence ``--mvs``), ``run_mvs`` and the pipeline read it; this
+settings (``MVSConfig.method``'s choices and help, hence ``--method``), ``run_mvs`` and the pipeline read it; this
 file imports no method (each is imported when first used).
 
 Two kinds of method:
 
 * **per view** (``"view"``): the depth stage's task graph (``depth.mvs.run_mvs``) plans each view (its source
   views, its depth range, its working resolution), runs the method's tasks, then the multi-view geometric
-  filter and writes the depth maps. ``--mvs NAME`` chooses one. Its module has
+  filter and writes the depth maps. ``--method NAME`` chooses one. Its module has
 
   - ``DEPTH_RANGE``: (near, far) factors on the 1st and 99th percentile of the depths of the sparse points a
     view sees (the depth range searched);
