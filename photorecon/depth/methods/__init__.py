@@ -83,7 +83,8 @@ def stage_method(run) -> ModuleType | None:
 
 def register(name: str, kind: str, module: str | ModuleType, help: str = "") -> None:
     """Add a method at run time (a plug-in, a test); a per-view one becomes a valid ``MVSConfig.method`` (for
-    configs built after this call)."""
+    configs built after this call). The registry is per process: for tasks on a cluster (``photorecon.distributed``)
+    the workers look the method up in theirs, so such a method belongs in ``REGISTRY`` as a dotted module path."""
     REGISTRY[name] = Entry(kind, module, help)
     _forget_hints()
 
