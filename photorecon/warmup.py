@@ -65,16 +65,16 @@ def _tiny_pm_calls() -> None:
 
 
 def _tiny_hole_calls() -> None:
-    """The hole filling's kernels (``mesh.holes``: ear clipping, the choice of notches) with the argument types of
-    their callers."""
-    from .mesh import holes as H
+    """The hole filling's kernels (``mesh.patch``'s ear clipping, ``mesh.boundary``'s choice of notches) with the
+    argument types of their callers."""
+    from .mesh import boundary, patch
 
     t = np.linspace(0.0, 2 * np.pi, 7)[:-1]
     xy = np.stack([np.cos(t), np.sin(t)], 1)
     P = np.ascontiguousarray(np.hstack([xy, np.zeros((6, 1))]))
-    H._ear_clip(xy, P, np.zeros(0, np.int64))
+    patch._ear_clip(xy, P, np.zeros(0, np.int64))
     nrm = np.ascontiguousarray(np.tile([0.0, 0.0, 1.0], (6, 1)))
-    H._pick_notches(P, nrm, np.array([0], np.int64), np.array([3], np.int64), 2.0, 0.5, 0.0)
+    boundary._pick_notches(P, nrm, np.array([0], np.int64), np.array([3], np.int64), 2.0, 0.5, 0.0)
 
 
 def warm_up() -> dict:

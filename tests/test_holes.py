@@ -1,4 +1,4 @@
-"""Hole filling (``mesh.holes``): small holes in a surface closed by faired patches that follow it, big ones
+"""Hole filling (``mesh.fill``, ``mesh.close``): small holes in a surface closed by faired patches that follow it, big ones
 left open, the observed surface untouched; the watertight companion of an object. A unit sphere with holes
 punched is the ground truth (scene units: its radius)."""
 import numpy as np
@@ -228,7 +228,7 @@ def test_object_in_pieces_closed_as_one_surface():
     """An object whose surface came out in pieces (a sphere cut by two bands into three, and open at its support):
     closing each piece would give closed crumbs; the companion is one watertight surface of about the ball's
     volume, above the support plane, with the bands marked filled and the observed pieces not."""
-    from photorecon.mesh.holes import closed_companion, main_share
+    from photorecon.mesh.close import closed_companion, main_share
 
     s = trimesh.creation.icosphere(subdivisions=5)
     V, F = np.asarray(s.vertices), np.asarray(s.faces)

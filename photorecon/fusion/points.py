@@ -9,6 +9,7 @@ import trimesh
 from ..cameras import backproject_depth, camera_center
 from ..errors import NoDepthError
 from ..progress import bar
+from ..mesh.clean import edge_use_counts
 from .config import DepthFrame
 from .frames import nonempty, pixel_footprint
 from .grid import _cell_keys
@@ -139,8 +140,6 @@ def surface_report(mesh: trimesh.Trimesh, frames: list[DepthFrame], n_samples: i
     """Watertightness (trimesh ``is_watertight``, boundary edges) and the *invented* fraction of a mesh's area:
     area-uniform samples farther than ``invent_distance`` from every observed depth point. The distance is two
     cells of the mesher (Poisson octree cell, TSDF voxel), at least three pixel footprints."""
-    from ..mesh import edge_use_counts
-
     frames = nonempty(frames)
     footprint = pixel_footprint(frames)
     cell = float(mesh.metadata.get("poisson_cell") or mesh.metadata.get("voxel_size") or 0.0)

@@ -4,7 +4,7 @@ The depth maps' oriented points (PatchMatch's own normals, NAME.normal.npy, else
 pixel neighbours; all turned toward their camera), thinned on a grid of one pixel footprint, give an implicit
 indicator function whose level set is the surface. Poisson closes every gap; the parts no point supports have
 a low sample density and are trimmed (``poisson_trim``). With ``watertight`` nothing the cameras never saw is
-trimmed: the open, trimmed surface's holes are closed by minimal patches (Open3D/VTK ``fill_holes``), points
+trimmed: the open, trimmed surface's holes are closed by minimal patches (Open3D/VTK ``fill_holes``: ``mesh.open3d_fill_holes``), points
 sampled on those patches join the observed ones, and a second Poisson pass gives one closed surface that
 follows the patches (a plain Poisson closure balloons out, e.g. 0.1 of the bunny's height below its base).
 """
@@ -17,6 +17,10 @@ import trimesh
 
 from ..arrays import isin, unique_sorted
 from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
+from ..mesh.boundary import boundary_directed
+from ..mesh.convert import from_open3d, largest_piece, open3d_fill_holes, poisson_surface, to_open3d
+from ..mesh.geometry import face_edges
+from ..mesh.solve import harmonic_fill, solve_spd, uniform_laplacian
 from .config import DepthFrame, FusionConfig
 from .frames import pixel_footprint
 from .points import _point_cloud
@@ -29,8 +33,6 @@ def poisson_fuse(frames: list[DepthFrame], cfg: FusionConfig) -> trimesh.Trimesh
     sample density, or (``cfg.watertight``) closed into one watertight surface.
 
     ``metadata``: ``mesher`` "poisson", ``poisson_cell`` (the octree cell, scene units), ``poisson_depth``."""
-    from ..mesh import from_open3d, poisson_surface
-
     frames = [f for f in frames if np.count_nonzero(f.depth)]
     if not frames:
         raise NoDepthError("every depth map is empty (all pixels invalid, masked or out of range): nothing to mesh")
@@ -82,11 +84,9 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     largest component kept."""
     import open3d as o3d
 
-    from ..mesh import fill_holes, from_open3d, largest_piece, poisson_surface, to_open3d
-
     open_mesh = largest_piece(open_mesh)
     diag = float(np.linalg.norm(open_mesh.bounds[1] - open_mesh.bounds[0]))
-    filled = fill_holes(open_mesh, diag)
+    filled = open3d_fill_holes(open_mesh, diag)
     patch_faces = filled.faces[len(open_mesh.faces):] if len(filled.faces) > len(open_mesh.faces) else np.zeros((0, 3), int)
     pts, nrm = np.asarray(cloud.points), np.asarray(cloud.normals)
     if len(patch_faces):
@@ -112,7 +112,7 @@ def _close(open_mesh: trimesh.Trimesh, cloud, depth: int, cell: float) -> trimes
     if not out.is_watertight:  # rims where the surface met the octree's box, or an edge of more than two faces
         m = to_open3d(out)
         m.remove_non_manifold_edges()
-        out = fill_holes(from_open3d(m), diag)
+        out = open3d_fill_holes(from_open3d(m), diag)
     return out
 
 
@@ -123,8 +123,6 @@ def _patch_colors(open_mesh: trimesh.Trimesh, patch: trimesh.Trimesh, cloud, poi
     blends the colours around it instead of copying the nearest observed point's (a blotchy, flat-looking
     patch). The rim's colours: the surface's vertex colours, else those of the nearest observed points."""
     from scipy.spatial import cKDTree
-
-    from ..mesh import harmonic_fill
 
     PV, PF = np.asarray(patch.vertices), np.asarray(patch.faces)
     # the patch's vertices that lie on the surface (the rim, and any surface vertex the filler reused)
@@ -148,10 +146,6 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     bi-Laplace equation (uniform weights) over the patch *and* the surface around it, with the surface fixed,
     so a patch continues the surface's slope across the rim instead of cutting straight across the hole
     (Liepa, "Filling holes in meshes", SGP 2003)."""
-    from scipy import sparse
-    from ..mesh.geometry import face_edges
-    from ..mesh.solve import solve_spd
-
     used = unique_sorted(patch_faces)
     remap = np.full(len(vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
@@ -162,12 +156,8 @@ def _fair_patch(open_mesh: trimesh.Trimesh, vertices: np.ndarray, patch_faces: n
     # one graph: the surface's vertices, then the patch's new ones (subdivision appends them after the old)
     to_global = np.concatenate([used, n_old + np.arange(n_new)])
     faces = np.vstack([np.asarray(open_mesh.faces), to_global[F]])
-    e = face_edges(faces)
-    e = np.vstack([e, e[:, ::-1]])
     n = n_old + n_new
-    A = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-    A.data[:] = 1.0
-    L = (sparse.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    L = uniform_laplacian(n, face_edges(faces))
     new = np.arange(n_old, n)
     L2 = (L[new] @ L).tocsc()
     X = np.vstack([np.asarray(open_mesh.vertices), V[len(used):]])
@@ -187,8 +177,6 @@ def _orient_patches(faces: np.ndarray, patch_faces: np.ndarray) -> np.ndarray:
     on the hole's rim run the same way as the surface's (a consistent winding runs them opposite). One sign
     for all patches went wrong when holes came out of the filler wound differently (a patch with inward
     normals makes the second Poisson pass balloon)."""
-    from ..mesh.holes import boundary_directed
-
     n = int(max(faces.max(), patch_faces.max())) + 1
     rim = boundary_directed(faces, n)  # directed boundary edges of the surface
     rim_keys = rim[:, 0] * n + rim[:, 1]

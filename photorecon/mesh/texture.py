@@ -47,7 +47,7 @@ from ..layout import Layout
 from ..progress import bar
 from ..resources import available_bytes
 from .atlas import _Charts, _merge_boxes, _rect_layout, make_charts, pack_charts, shelf_pack
-from .clean import harmonic_fill
+from .solve import harmonic_fill
 from ..config_checks import check_config, expect_config
 
 log = logging.getLogger("photorecon")
@@ -99,7 +99,7 @@ def face_view_quality(mesh: trimesh.Trimesh, views: list[View], masks: Callable[
                       min_cos: float = 0.1, scene=None) -> np.ndarray:
     """(F, V) float32: the projected area in pixels of face f in view v where v sees f (see the module
     docstring), else 0."""
-    from .clean import raycasting_scene
+    from .convert import raycasting_scene
     import open3d as o3d
 
     scene = scene or raycasting_scene(mesh)
