@@ -7,7 +7,7 @@ into metres.
   marker edge measure the given size, with the edges' relative spread as a sanity figure.
 * ``gps_alignment``: reads GPSLatitude / GPSLongitude / GPSAltitude from the photos' EXIF (Pillow), converts
   them to local east-north-up metres around the first photo with GPS (WGS84 -> ECEF -> ENU) and fits a Sim3
-  (``metrics.umeyama``) from the camera centres to those positions. Needs >= 3 photos with GPS whose positions
+  (``transform.umeyama``) from the camera centres to those positions. Needs >= 3 photos with GPS whose positions
   are not (nearly) on one line.
 * ``apply_similarity``: the model in the world ``X' = s R X + t``. Cameras keep their images: every camera
   frame is scaled by ``s`` too, so ``cam_from_world' = [R_c R^T | s t_c - R_c R^T t]`` and a point's camera
@@ -36,6 +36,7 @@ from ..errors import BadArgumentError, InputDataError
 from ..layout import Layout
 from ..io.colmap_text import SparseModel
 from ..config_checks import check_config
+from ..transform import umeyama
 
 log = logging.getLogger("photorecon")
 
@@ -319,8 +320,6 @@ def gps_alignment(model: SparseModel, image_paths, min_spread_m: float = 0.5) ->
     the camera centres (``image_paths``: the photos with their EXIF, aligned with the views or a mapping
     name -> path). None, with a warning, when fewer than 3 photos have GPS or their positions (or the camera
     centres) lie nearly on a line (the rotation about it is then unknown)."""
-    from ..metrics import umeyama
-
     paths = _image_paths(model, image_paths)
     fixes = [(v, read_gps(p)) for v, p in zip(model.views, paths) if p is not None and p.is_file()]
     fixes = [(v, g) for v, g in fixes if g is not None]

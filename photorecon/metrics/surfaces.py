@@ -1,5 +1,5 @@
-"""Accuracy metrics against ground truth: meshes (Chamfer, F-score, normal consistency), reference point
-clouds (DTU / ETH3D / Tanks-and-Temples style, absolute thresholds) and depth.
+"""Surface accuracy against ground truth: meshes (Chamfer, F-score, normal consistency) and reference point
+clouds (DTU / ETH3D / Tanks-and-Temples style, absolute thresholds).
 
 Mesh metrics sample ``n_samples`` points area-uniformly on each mesh with a fixed seed (default 200,000,
 seed 0) and measure exact point-to-triangle distances to the other mesh (Open3D ``RaycastingScene``):
@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .errors import BadArgumentError, EmptyMeshError, InputDataError
-from .mesh.export import check_finite_vertices
+from ..errors import BadArgumentError, EmptyMeshError, InputDataError
+from ..mesh.convert import raycasting_scene
+from ..mesh.export import check_finite_vertices
 
 
 @dataclass
@@ -35,7 +36,6 @@ class ThresholdScore:
     recall: float
     fscore: float
 
-
 def _scores(d_acc: np.ndarray, d_comp: np.ndarray, taus: Sequence[float]) -> list[ThresholdScore]:
     out = []
     for t in taus:
@@ -44,7 +44,6 @@ def _scores(d_acc: np.ndarray, d_comp: np.ndarray, taus: Sequence[float]) -> lis
         out.append(ThresholdScore(float(t), p, r, 2 * p * r / (p + r) if p + r > 0 else 0.0))
     return out
 
-
 def check_taus(taus) -> list[float]:
     """Distance thresholds as a list of finite floats > 0 (a single number is accepted)."""
     arr = np.atleast_1d(np.asarray(taus, dtype=float)) if taus is not None else np.zeros(0)
@@ -52,11 +51,9 @@ def check_taus(taus) -> list[float]:
         raise BadArgumentError(f"tau: expected one or more finite distances > 0, got {taus!r}")
     return [float(t) for t in arr]
 
-
 def _box_distance(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Euclidean distance of each point (N, 3) to the axis-aligned box [lo, hi] (0 inside)."""
     return np.linalg.norm(np.maximum(np.maximum(lo - pts, pts - hi), 0.0), axis=1)
-
 
 @dataclass
 class MeshMetrics:
@@ -82,7 +79,6 @@ class MeshMetrics:
 
     def as_dict(self) -> dict:
         return asdict(self)
-
 
 @dataclass
 class CloudMetrics:
@@ -112,12 +108,9 @@ class CloudMetrics:
                 return s
         raise BadArgumentError(f"tau {tau} was not evaluated; evaluated: {[s.tau for s in self.thresholds]}")
 
-
 class _Distance:
     def __init__(self, mesh: trimesh.Trimesh):
         import open3d as o3d
-
-        from .mesh import raycasting_scene
 
         self.scene = raycasting_scene(mesh)
         self.normals = np.asarray(mesh.face_normals)
@@ -129,11 +122,9 @@ class _Distance:
         closest = ans["points"].numpy().astype(np.float64)
         return np.linalg.norm(pts - closest, axis=1), self.normals[ans["primitive_ids"].numpy()]
 
-
 def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     pts, face = trimesh.sample.sample_surface(mesh, n, seed=seed)
     return np.asarray(pts), np.asarray(mesh.face_normals)[face]
-
 
 def distance_to(target: trimesh.Trimesh | np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Distance (N,) from each point (N, 3) to ``target``: exact point-to-triangle for a mesh, to the
@@ -144,7 +135,6 @@ def distance_to(target: trimesh.Trimesh | np.ndarray, pts: np.ndarray) -> np.nda
     from scipy.spatial import cKDTree
 
     return cKDTree(np.asarray(target, np.float64)).query(pts, workers=-1)[0]
-
 
 def _as_points(geom, name: str, n_samples: int, seed: int) -> np.ndarray:
     """(N, 3) float64 points of a point array, a face-less Trimesh / PointCloud (its vertices) or a triangle
@@ -160,7 +150,6 @@ def _as_points(geom, name: str, n_samples: int, seed: int) -> np.ndarray:
         raise BadArgumentError(f"{name}: {int((~np.isfinite(pts).all(1)).sum())} points are NaN/inf")
     return pts
 
-
 def _crop(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: float | None) -> np.ndarray:
     """Boolean mask of the points to keep: within ``margin`` of the box [lo, hi] (all when margin is None)."""
     if margin is None:
@@ -173,7 +162,6 @@ def _crop(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: float | None)
                              f"{np.round(lo, 6).tolist()} .. {np.round(hi, 6).tolist()}: is the result in the "
                              "reference's frame and units?")
     return keep
-
 
 def cloud_metrics(result: trimesh.Trimesh | np.ndarray, reference, taus: Sequence[float] | float,
                   n_samples: int = 200_000, seed: int = 0, crop_margin: float | None = None,
@@ -223,7 +211,6 @@ def cloud_metrics(result: trimesh.Trimesh | np.ndarray, reference, taus: Sequenc
                         len(ref), spacing, int(keep.sum()), None if crop_margin is None else float(crop_margin),
                         int((~keep).sum()), outside)
 
-
 def load_reference(path: str | Path) -> trimesh.Trimesh | np.ndarray:
     """A ground truth file: a triangle mesh (``Trimesh``) or, for a file with vertices and no faces (e.g. a
     PLY point cloud such as a laser scan), its (N, 3) float64 points. Raises ``InputDataError`` naming the
@@ -248,7 +235,6 @@ def load_reference(path: str | Path) -> trimesh.Trimesh | np.ndarray:
         raise InputDataError(f"{path}: no faces and no points: an empty mesh or point cloud")
     check_finite_vertices(pts, path, "points")
     return pts
-
 
 def mesh_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, tau: float | None = None, n_samples: int = 200_000,
                  seed: int = 0, icp: bool = False, taus: Sequence[float] | None = None,
@@ -279,7 +265,6 @@ def mesh_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, tau: float | None
                        _scores(d_acc, d_comp, taus), None if crop_margin is None else float(crop_margin),
                        int((~keep).sum()))
 
-
 def seen_split_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, observed: np.ndarray, radius: float,
                        tau: float | None = None, n_samples: int = 100_000, seed: int = 0) -> dict:
     """Precision, recall and F-score at ``tau`` (default 1% of the truth's diagonal) split by what the cameras
@@ -304,7 +289,6 @@ def seen_split_metrics(result: trimesh.Trimesh, gt: trimesh.Trimesh, observed: n
         out[key] = {"precision": s.precision, "recall": s.recall, "fscore": s.fscore,
                     "share_result": float(mr.mean()), "share_truth": float(mg.mean())}
     return out
-
 
 def icp_refine(result, gt, max_dist: float):
     """Rigidly align ``result`` to ``gt`` with point-to-plane ICP (Open3D) on surface samples. Either may be
@@ -335,7 +319,6 @@ def icp_refine(result, gt, max_dist: float):
     out.apply_transform(T)
     return out
 
-
 def error_colors(result: trimesh.Trimesh, gt, tau: float) -> tuple[np.ndarray, np.ndarray]:
     """Per-vertex distance to ``gt`` (a mesh, or (M, 3) reference points) and RGB colours (turbo, 0 -> blue
     ... >= 2 tau -> red)."""
@@ -346,22 +329,6 @@ def error_colors(result: trimesh.Trimesh, gt, tau: float) -> tuple[np.ndarray, n
     rgb = cv2.applyColorMap(x[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
     return d, rgb
 
-
-def depth_metrics(pred: np.ndarray, gt: np.ndarray, rel_threshold: float = 0.01) -> dict:
-    """Depth errors on pixels valid in both: AbsRel, RMSE, fraction within ``rel_threshold`` of the truth,
-    and coverage (fraction of true surface pixels with a prediction)."""
-    pred, gt = np.asarray(pred, np.float64), np.asarray(gt, np.float64)
-    if pred.shape != gt.shape:
-        raise BadArgumentError(f"depth metrics: shapes differ, {pred.shape} vs {gt.shape}")
-    both = (pred > 0) & (gt > 0) & np.isfinite(pred)
-    if not both.any():
-        return {"abs_rel": float("nan"), "rmse": float("nan"), "within": 0.0, "coverage": 0.0, "pixels": 0}
-    rel = np.abs(pred[both] - gt[both]) / gt[both]
-    return {"abs_rel": float(rel.mean()), "rmse": float(np.sqrt(((pred[both] - gt[both]) ** 2).mean())),
-            "within": float((rel < rel_threshold).mean()), "coverage": float(both.sum() / max((gt > 0).sum(), 1)),
-            "pixels": int(both.sum())}
-
-
 def doubled_shell_fraction(mesh: trimesh.Trimesh, tau: float, n_samples: int = 50_000, seed: int = 0) -> float:
     """Fraction of surface samples that have *another* sheet of the same mesh within ``tau`` along their
     normal (either side) facing the same way: the overlapping shells that concatenated per-view meshes give.
@@ -369,7 +336,6 @@ def doubled_shell_fraction(mesh: trimesh.Trimesh, tau: float, n_samples: int = 5
     import open3d as o3d
 
     pts, nrm = sample_surface(mesh, n_samples, seed)
-    from .mesh import raycasting_scene
 
     scene = raycasting_scene(mesh)
     fn = np.asarray(mesh.face_normals)
@@ -386,184 +352,3 @@ def doubled_shell_fraction(mesh: trimesh.Trimesh, tau: float, n_samples: int = 5
         same[hit] = np.einsum("nc,nc->n", fn[ids[hit]], nrm[hit]) > 0.5
         doubled |= same
     return float(doubled.mean())
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity ``dst ~ s * R @ src + t`` (Umeyama 1991). Returns (s, R, t)."""
-    src, dst = np.asarray(src, float), np.asarray(dst, float)
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
-        raise BadArgumentError(f"Sim3 alignment: expected two (N, 3) arrays with N >= 3, got {src.shape} and {dst.shape}")
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    U, D, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1
-    R = U @ S @ Vt
-    var = (xs ** 2).sum() / len(src)
-    s = float(np.trace(np.diag(D) @ S) / var) if with_scale and var > 0 else 1.0
-    return s, R, mu_d - s * R @ mu_s
-
-
-def _pairs(estimate: list, reference: list) -> list:
-    ref = {v.name: v for v in reference}
-    pairs = [(e, ref[e.name]) for e in estimate if e.name in ref]
-    if len(pairs) < 3:
-        raise BadArgumentError(f"pose metrics: {len(pairs)} images in common between estimate and reference; "
-                               "need at least 3 (names must match)")
-    return pairs
-
-
-def align_cameras(estimate: list, reference: list) -> tuple[float, np.ndarray, np.ndarray]:
-    """Sim3 (s, R, t) taking the estimate's world to the reference's: Umeyama on the camera centres of the
-    views (``View`` lists) that share a name. ``X_ref = s * R @ X_est + t``."""
-    pairs = _pairs(estimate, reference)
-    return umeyama(np.array([e.center for e, _ in pairs]), np.array([r.center for _, r in pairs]))
-
-
-def pose_metrics(estimate: list, reference: list) -> dict:
-    """Compare estimated cameras with reference cameras (``View`` lists, matched by name): Sim3 (Umeyama)
-    alignment of the camera centres, then per-image rotation error (degrees) and centre error (absolute,
-    in reference units, and relative to the reference cameras' spread = RMS distance of the reference
-    centres from their centroid)."""
-    pairs = _pairs(estimate, reference)
-    ref = {v.name: v for v in reference}
-    s, R, t = align_cameras(estimate, reference)
-    ce = np.array([e.center for e, _ in pairs])
-    cr = np.array([r.center for _, r in pairs])
-    c_al = s * ce @ R.T + t
-    cerr = np.linalg.norm(c_al - cr, axis=1)
-    rerr = []
-    for e, r in pairs:
-        R_e = e.cam_from_world[:3, :3] @ R.T  # estimated camera rotation, in the reference world
-        d = R_e @ r.cam_from_world[:3, :3].T
-        rerr.append(np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1, 1))))
-    rerr = np.array(rerr)
-    spread = float(np.sqrt(((cr - cr.mean(0)) ** 2).sum(1).mean()))
-    return {"registered": len(pairs), "reference_count": len(reference), "estimate_count": len(estimate),
-            "missing": sorted(set(ref) - {e.name for e, _ in pairs}),
-            "rot_mean_deg": float(rerr.mean()), "rot_median_deg": float(np.median(rerr)), "rot_max_deg": float(rerr.max()),
-            "center_mean": float(cerr.mean()), "center_median": float(np.median(cerr)), "center_max": float(cerr.max()),
-            "spread": spread, "center_mean_rel": float(cerr.mean() / spread), "center_max_rel": float(cerr.max() / spread),
-            "sim3_scale": s, "per_image": {e.name: {"rot_deg": float(a), "center": float(b)}
-                                           for (e, _), a, b in zip(pairs, rerr, cerr)}}
-
-
-def evaluate_reconstruction(rec_dir, data_dir, n_samples: int = 100_000) -> tuple[dict, MeshMetrics]:
-    """A ``reconstruct`` output folder against a synthetic dataset: pose metrics, and mesh metrics after
-    moving the mesh into the truth's world with the Sim3 that aligns the cameras."""
-    from .io.dataset import read_model
-    from .layout import Layout
-
-    rec_layout, ref_layout = Layout(rec_dir), Layout(data_dir)
-    ref = read_model(ref_layout.sparse).views
-    est = read_model(rec_layout.sparse).views
-    poses = pose_metrics(est, ref)
-    s, R, t = align_cameras(est, ref)
-    mesh = trimesh.load(rec_layout.mesh("ply"), process=False)
-    mesh.vertices = s * np.asarray(mesh.vertices) @ R.T + t
-    gt = trimesh.load(ref_layout.gt_mesh, process=False)
-    return poses, mesh_metrics(mesh, gt, n_samples=n_samples)
-
-
-def cameras_beside(path: str | Path) -> list | None:
-    """The cameras of the result or dataset folder holding the file ``path`` (``sparse/0`` or
-    ``transforms.json`` next to a reconstruct output's mesh.ply or a dataset's gt_mesh.ply), or None."""
-    from .io.dataset import read_model
-    from .layout import Layout
-
-    layout = Layout(Path(path).resolve().parent)
-    for src in (layout.sparse, layout.transforms):
-        if src.exists():
-            try:
-                return read_model(src).views
-            except (InputDataError, BadArgumentError):
-                return None
-    return None
-
-
-def align_by_cameras(geometry, estimate: list, reference: list):
-    """``geometry`` (a ``Trimesh`` or (N, 3) points in the estimate's world) moved into the reference's world
-    with the Sim3 that aligns the cameras of the same name (``align_cameras``). Returns (moved geometry, facts:
-    shared views, scale, camera-centre RMS after alignment and relative to the reference cameras' spread)."""
-    s, R, t = align_cameras(estimate, reference)
-    pairs = _pairs(estimate, reference)
-    ce = np.array([e.center for e, _ in pairs])
-    cr = np.array([r.center for _, r in pairs])
-    rms = float(np.sqrt(((s * ce @ R.T + t - cr) ** 2).sum(1).mean()))
-    spread = float(np.sqrt(((cr - cr.mean(0)) ** 2).sum(1).mean()))
-    if isinstance(geometry, trimesh.Trimesh):
-        moved = geometry.copy()
-        moved.vertices = s * np.asarray(geometry.vertices) @ R.T + t
-    else:
-        moved = s * np.asarray(geometry, float) @ R.T + t
-    return moved, {"method": "cameras", "views": len(pairs), "scale": float(s), "rotation": R.tolist(),
-                   "translation": t.tolist(), "camera_rms": rms, "camera_rms_rel": rms / spread if spread else 0.0}
-
-
-def frames_differ(result, reference) -> str | None:
-    """A reason to think ``result`` and ``reference`` (meshes or points) are in different frames, from their
-    bounding boxes (centres apart by more than half the reference's diagonal, or sizes differing more than 3x),
-    or None."""
-    def box(g):
-        p = np.asarray(g.vertices if isinstance(g, trimesh.Trimesh) else g, float)
-        return p.min(0), p.max(0)
-
-    (lr, hr), (lg, hg) = box(result), box(reference)
-    dr, dg = float(np.linalg.norm(hr - lr)), float(np.linalg.norm(hg - lg))
-    gap = float(np.linalg.norm((lr + hr) / 2 - (lg + hg) / 2))
-    if dg <= 0:
-        return None
-    if gap > 0.5 * dg or not 1 / 3 <= dr / dg <= 3:
-        return (f"the result's bounding box (diagonal {dr:.4g}, centre {gap:.4g} from the truth's) does not match "
-                f"the truth's (diagonal {dg:.4g})")
-    return None
-
-
-# --- two views: co-visible pixels, disparity errors of a rectified pair ------------------------------------
-def covisible(depth_a: np.ndarray, view_a, depth_b: np.ndarray, view_b, rel_tol: float = 0.01) -> np.ndarray:
-    """(H, W) bool: the pixels of view a whose true surface point (``depth_a``, z-depth, 0 = none) view b also
-    sees: it projects inside b, in front of it, within ``rel_tol`` of b's true depth at the nearest pixel (not
-    hidden behind another surface there)."""
-    from .cameras import backproject_depth, project
-
-    valid = depth_a > 0
-    out = np.zeros(depth_a.shape, bool)
-    if not valid.any():
-        return out
-    pts = backproject_depth(np.where(valid, depth_a, 0), view_a.intrinsics, view_a.cam_from_world)
-    uv, z = project(pts, view_b.intrinsics, view_b.cam_from_world)
-    W, H = view_b.intrinsics.size
-    with np.errstate(invalid="ignore"):
-        ij = np.round(np.nan_to_num(uv, nan=-1.0)).astype(np.int64)
-        ok = (z > 0) & (ij[:, 0] >= 0) & (ij[:, 0] < W) & (ij[:, 1] >= 0) & (ij[:, 1] < H)
-    zb = np.zeros(len(z))
-    zb[ok] = depth_b[ij[ok, 1], ij[ok, 0]]
-    ok &= (zb > 0) & (np.abs(zb - z) < rel_tol * np.maximum(z, 1e-12))
-    out[valid] = ok
-    return out
-
-
-def two_view_depth_scores(depth: np.ndarray, gt: np.ndarray, covis: np.ndarray, rel: float = 0.01) -> dict:
-    """A view's depth against the truth on its co-visible pixels ``covis``: ``within`` = the fraction of them
-    with a depth within ``rel`` of the truth (a missing depth counts as wrong), ``coverage`` = the fraction with
-    a depth, ``accuracy`` = within / coverage (how often a given depth is right)."""
-    n = int(covis.sum())
-    has = covis & (depth > 0) & np.isfinite(depth)
-    good = has & (np.abs(depth - gt) < rel * np.maximum(gt, 1e-12))
-    cov = has.sum() / max(n, 1)
-    return {"pixels": n, "within": float(good.sum() / max(n, 1)), "coverage": float(cov),
-            "accuracy": float(good.sum() / max(has.sum(), 1))}
-
-
-def disparity_scores(disp: np.ndarray, gt_disp: np.ndarray, covis: np.ndarray, px: float = 2.0) -> dict:
-    """Disparity (pixels; NaN or <= 0 = no answer) against the truth on ``covis`` pixels, as stereo benchmarks
-    count it: ``within`` = the fraction of them within ``px`` pixels (no answer = wrong), ``completeness`` = the
-    fraction answered, ``bad`` = the fraction of the answered ones off by more than ``px``."""
-    n = int(covis.sum())
-    has = covis & np.isfinite(disp) & (disp > 0)
-    err = np.abs(np.where(has, disp, 0) - gt_disp)
-    good = has & (err <= px)
-    return {"pixels": n, "within": float(good.sum() / max(n, 1)), "completeness": float(has.sum() / max(n, 1)),
-            "bad": float((has & (err > px)).sum() / max(has.sum(), 1))}
