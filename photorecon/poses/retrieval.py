@@ -140,12 +140,14 @@ def build_index(database: Path, path: Path, seed: int = 0, threads: int = -1) ->
 def retrieval_pairs(database: Path, index: Path, k: int, threads: int = -1,
                     query_ids: list[int] | None = None) -> set[tuple[int, int]]:
     """Each photo (of ``query_ids``, default all) with its ``k`` most similar others by the visual ``index``:
-    pairs of image ids (smaller first)."""
+    pairs of image ids (smaller first); the same every run (``threads`` is not used: see below)."""
     pycolmap = _pycolmap()
     opt = pycolmap.VocabTreePairingOptions()
     opt.vocab_tree_path = str(index)
     opt.num_images = k + 1  # a photo retrieves itself first
-    opt.num_threads = threads
+    # one thread: on more, the same index gave other pairs now and then (48 ring views, 6 runs: 2 different
+    # sets of pairs; on one, 1), at the same CPU time (2.3 s a run, 2026-11-28)
+    opt.num_threads = 1
     db = pycolmap.Database.open(str(database))
     try:
         gen = pycolmap.VocabTreePairGenerator(opt, db, list(query_ids or []))
