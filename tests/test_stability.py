@@ -37,3 +37,55 @@ def test_fastmath_switch_compiles_strict_kernels_into_a_cache_of_their_own(tmp_p
     # kernels of the other setting are never read: numba's cache index does not record fastmath
     assert Path(off["cache"]).is_relative_to(tmp_path / "cache" / "photorecon-nofastmath")
     assert Path(on["cache"]) != Path(off["cache"])
+
+
+def _square(x0, y0, w, h, n=8):
+    """A flat w x h rectangle at (x0, y0), z = 0, triangulated on an n x n grid: (vertices, faces)."""
+    import numpy as np
+
+    xs, ys = np.meshgrid(np.linspace(x0, x0 + w, n + 1), np.linspace(y0, y0 + h, n + 1))
+    V = np.c_[xs.ravel(), ys.ravel(), np.zeros(xs.size)]
+    i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
+    F = np.concatenate([np.c_[i.ravel(), i.ravel() + 1, i.ravel() + n + 2],
+                        np.c_[i.ravel(), i.ravel() + n + 2, i.ravel() + n + 1]])
+    return V, F
+
+
+def _mesh(parts):
+    import numpy as np
+    import trimesh
+
+    Vs, Fs, k = [], [], 0
+    for V, F in parts:
+        Vs.append(V)
+        Fs.append(F + k)
+        k += len(V)
+    return trimesh.Trimesh(np.concatenate(Vs), np.concatenate(Fs), process=False)
+
+
+def test_debris_and_main_surface_do_not_hinge_on_a_thin_bridge_between_two_big_pieces():
+    """The object's surface fused as two big halves, and a hundred small pieces along it of 0.3% of a half's area.
+    Whether a one-voxel bridge joins the halves (a 1-ulp change of the fused grid can make or break one) used to
+    double the size the pieces were measured against, turning every small piece into debris: they are now
+    measured against the whole surface's area, which a bridge barely changes."""
+    import numpy as np
+
+    from photorecon.mesh import floater_mask, to_open3d
+
+    half_a, half_b = _square(0.0, 0.0, 1.0, 1.0, 20), _square(1.002, 0.0, 1.0, 1.0, 20)
+    small = [_square(0.05 + 0.19 * (i % 10), 1.01 + 0.06 * (i // 10), 0.055, 0.055, 2) for i in range(30)]
+
+    def kept_small(with_bridge: bool) -> float:
+        parts = [half_a, half_b, *small]
+        mesh = _mesh(parts)
+        if with_bridge:  # two triangles sharing the halves' own edge vertices: one piece
+            n = 21
+            a_right = [k * n + 20 for k in (10, 11)]  # half_a's vertices at x = 1 (rows 10, 11)
+            b_left = [len(half_a[0]) + k * n for k in (10, 11)]  # half_b's at x = 1.002
+            faces = np.vstack([mesh.faces, [[a_right[0], b_left[0], b_left[1]], [a_right[0], b_left[1], a_right[1]]]])
+            mesh = type(mesh)(mesh.vertices, faces, process=False)
+        drop = floater_mask(to_open3d(mesh), 0.05, 0.05, 0.002)
+        n_big = len(half_a[1]) + len(half_b[1])
+        return float(np.mean(~drop[n_big:n_big + sum(len(f) for _, f in small)]))
+
+    assert kept_small(False) == kept_small(True)
