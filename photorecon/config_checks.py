@@ -15,6 +15,7 @@ metadata::
     "length": N                a comma-separated tuple of exactly N numbers (each within the range)
     "box": True                with length 6: xmin,ymin,zmin,xmax,ymax,zmax with each min below its max
 
+A field only benchmarks change declares ``"tuning": True`` (the command line leaves it out of ``--help-all``).
 A text field may declare ``"parse": FUNCTION`` (the check of its text: returns the value or raises
 ``argparse.ArgumentTypeError``), e.g. ``--cluster``'s address.
 """

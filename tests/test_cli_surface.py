@@ -178,14 +178,27 @@ def test_a_former_flag_on_the_command_line_warns_in_one_line(tmp_path):
 
 # --- tuning settings --------------------------------------------------------------------------------------
 
+# the settings only benchmarks change (MVSConfig marks them metadata={"tuning": True})
+TUNING = ("pm_reuse_cost", "pm_same_depth", "pm_same_normal_deg", "pm_carry_views", "pm_final_own_round",
+          "pm_sigma_color", "geom_weight", "consistency_confidence", "textured_min_confidence", "pm_skip_consistent",
+          "pm_fine_views", "pm_fine_refine")
+
+
+def test_the_tuning_settings_are_the_marked_ones():
+    import dataclasses
+
+    from photorecon.depth.mvs import MVSConfig
+
+    assert {f.name for f in dataclasses.fields(MVSConfig) if f.metadata.get("tuning")} == set(TUNING)
+
 
 def test_tuning_settings_are_left_out_of_help_all_and_still_set(parser, tmp_path):
-    from photorecon.cli.config import TUNING, apply_settings_file
+    from photorecon.cli.config import apply_settings_file
 
     sp = parser.command_parser("reconstruct")
     full = sp.format_help(full=True)
-    assert f"{len(TUNING['mvs'])} tuning settings" in full and "docs/cli.md" in full
-    for name in TUNING["mvs"]:
+    assert f"{len(TUNING)} tuning settings" in full and "docs/cli.md" in full
+    for name in TUNING:
         assert f"--{name.replace('_', '-')}" not in full and f"--mvs.{name.replace('_', '-')} " not in full, name
     assert "--pm-iterations" in full and "--method" in full  # what a user sets stays
     # still set by a flag and by a settings file
@@ -200,13 +213,11 @@ def test_tuning_settings_are_left_out_of_help_all_and_still_set(parser, tmp_path
 
 
 def test_tuning_settings_are_documented_in_their_own_section():
-    from photorecon.cli.config import TUNING
-
     doc = (ROOT / "docs" / "cli.md").read_text()
     section = doc.split("## photorecon reconstruct\n", 1)[1].split("\n## ", 1)[0].split("### Tuning settings", 1)
     assert len(section) == 2, "no Tuning settings section for reconstruct"
     before, tuning = section
-    for name in TUNING["mvs"]:
+    for name in TUNING:
         listed = re.compile(rf"`--{name.replace('_', '-')}[ ,`]")
         assert listed.search(tuning) and not listed.search(before), name
 

@@ -218,19 +218,11 @@ RENAMED: dict[str, dict[str, str]] = {
     "fusion": {"fusion_memory": "memory_gb"},  # --fusion-memory GB: --memory-gb GB (--fusion.memory-gb)
 }
 
-# Tuning settings: what only benchmarks set (their defaults were measured; docs/benchmarks.md). Not listed by
-# --help-all; docs/cli.md lists them under "Tuning settings"; a flag or a --config key sets them as any other.
-# A config may mark such a field itself with metadata={"tuning": True}.
-TUNING: dict[str, tuple[str, ...]] = {
-    "mvs": ("pm_reuse_cost", "pm_same_depth", "pm_same_normal_deg", "pm_carry_views", "pm_final_own_round",
-            "pm_sigma_color", "geom_weight", "consistency_confidence", "textured_min_confidence",
-            "pm_skip_consistent", "pm_fine_views", "pm_fine_refine"),
-}
-
-
 def is_tuning(prefix: str, f: dataclasses.Field) -> bool:
-    """``f`` (of the config with CLI prefix ``prefix``) is a tuning setting (``TUNING``)."""
-    return bool(f.metadata.get("tuning")) or f.name in TUNING.get(prefix, ())
+    """``f`` is a tuning setting: one only benchmarks change (their defaults were measured; docs/benchmarks.md),
+    marked in its config with ``metadata={"tuning": True}``. Not listed by --help-all; docs/cli.md lists them
+    under "Tuning settings"; a flag or a --config key sets them as any other."""
+    return bool(f.metadata.get("tuning"))
 
 
 def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), defaults=None) -> None:
