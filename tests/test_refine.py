@@ -8,8 +8,8 @@ import trimesh
 from photorecon.cameras import Intrinsics, View, look_at_views, sphere_positions
 from photorecon.cli import main
 from photorecon.mesh import raycasting_scene
-from photorecon.mesh.refine import (RefineConfig, _level, facing, patch_scores, refine_mesh, select_views,
-                                    subdivide_long, tangents, vertex_normals, visibility)
+from photorecon.mesh.refine import RefineConfig, patch_scores, refine_mesh, subdivide_long, tangents, vertex_normals
+from photorecon.mesh.refine_views import _level, facing, select_views, visibility
 from photorecon.metrics import mesh_metrics
 from photorecon.render import Renderer, SolidNoise
 
