@@ -268,7 +268,7 @@ def test_weighted_kernel_matches_numpy_reference(normal_sdf, form):
     import open3d as o3d
     import open3d.core as o3c
 
-    from photorecon.fusion import _integrate_weighted
+    from photorecon.fusion.tsdf import _integrate_weighted
 
     rng = np.random.default_rng(0)
     intr = Intrinsics(40, 30, 35.0, 36.0, 19.3, 14.6)
@@ -724,7 +724,7 @@ def test_fusion_stage_keeps_only_the_depth_of_its_frames(frames, tmp_path):
 def test_surface_report_counts_edges_and_samples_the_area():
     """A closed box is watertight with no boundary edge; with one face removed, 3 boundary edges; area samples
     lie on the surface and follow the faces' areas."""
-    from photorecon.fusion import _area_samples
+    from photorecon.fusion.points import _area_samples
     from photorecon.mesh import boundary_edges, edge_use_counts
 
     box = trimesh.creation.box(extents=(1.0, 2.0, 4.0))
@@ -775,7 +775,7 @@ def test_fusion_memory_budget_coarsens_the_voxel_and_keeps_the_surface(frames, g
     import tracemalloc
 
     from photorecon.fusion import budget_share, estimate_faces
-    from photorecon.fusion.tsdf import MESH_BYTES_PER_FACE
+    from photorecon.fusion.budget import MESH_BYTES_PER_FACE
 
     pts = Dataset.open(blob_fusion).model.points
     full = fuse(frames, FusionConfig(), pts)

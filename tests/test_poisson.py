@@ -194,7 +194,7 @@ def test_watertight_patch_colour_follows_its_rim():
     import open3d as o3d
     from scipy.spatial import cKDTree
 
-    from photorecon.fusion import _close
+    from photorecon.fusion.poisson import _close
 
     def ramp(p):
         return np.stack([(p[:, 0] + 1) / 2, np.full(len(p), 0.5), 1 - (p[:, 1] + 1) / 2], 1)

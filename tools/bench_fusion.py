@@ -30,6 +30,7 @@ import trimesh
 from photorecon import progress
 from photorecon import fusion
 from photorecon.fusion import DepthFrame, FusionConfig, fuse, legacy_article_fuse, load_frames
+from photorecon.fusion.tsdf import _integrate_weighted
 from photorecon.io.dataset import Dataset
 from photorecon.mesh import clean
 from photorecon.metrics import doubled_shell_fraction, mesh_metrics
@@ -152,7 +153,7 @@ def run_integrate(method: str, root: Path) -> dict:
     warm = None
     if method == "numba":  # compile (or load from the cache) on a tiny frame first: reported apart
         t0 = time.perf_counter()
-        fusion._integrate_weighted(*_tiny_grid_args())
+        _integrate_weighted(*_tiny_grid_args())
         warm = time.perf_counter() - t0
     inputs = [(f, o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(f.depth))),
                o3d.t.geometry.Image(o3c.Tensor(f.color.astype(np.float32) / 255.0)),
@@ -172,7 +173,7 @@ def run_integrate(method: str, root: Path) -> dict:
         elif method == "numpy":
             integrate_weighted_numpy(vbg, coords, f, voxel, trunc, depth_max)
         else:
-            fusion._integrate_weighted(vbg, coords, f, voxel, trunc, depth_max)
+            _integrate_weighted(vbg, coords, f, voxel, trunc, depth_max)
         t2 = time.perf_counter()
         t_blocks += t1 - t0
         t_int += t2 - t1
@@ -208,11 +209,11 @@ def run_warmup() -> dict:
     """The numba kernel's first call (the tiny frame) in this process, then a second call."""
     args = _tiny_grid_args()
     t0 = time.perf_counter()
-    fusion._integrate_weighted(*args)
+    _integrate_weighted(*args)
     first = time.perf_counter() - t0
     args = _tiny_grid_args()
     t0 = time.perf_counter()
-    fusion._integrate_weighted(*args)
+    _integrate_weighted(*args)
     return {"first_call_s": first, "second_call_s": time.perf_counter() - t0}
 
 

@@ -130,10 +130,11 @@ def child(args) -> dict:
         from photorecon.fusion import tsdf as fusion_tsdf
         for mod, name in ((fusion, "load_frames"), (fusion_tsdf, "tsdf_voxel_size"), (fusion_tsdf, "_new_grid"),
                           (fusion_tsdf, "_integrate_frame"), (fusion_tsdf, "_extract"), (fusion_tsdf, "stitch_pieces"),
-                          (fusion, "surface_report"), (mesh_mod, "clean"), (mesh_mod, "export"),
+                          (fusion, "surface_report"), (mesh_mod, "clean"), (mesh_mod, "export"), (fusion, "export"),
                           (preview_mod, "render_preview"), (report_mod, "decimate_for_viewer")):
             sampler.wrap(mod, name)
         sampler.wrap(mesh_mod, "clean_open3d", "clean")
+        sampler.wrap(fusion, "clean_open3d", "clean")  # fusion imports it by name
     d = StageConfigs()
     fus, cln = d.fusion, d.clean
     ff, cf = {f.name for f in fields(FusionConfig)}, {f.name for f in fields(CleanConfig)}

@@ -17,19 +17,20 @@ from ..arrays import position_order
 from ..cameras import View
 from ..errors import BadArgumentError, EmptyMeshError
 from ..config_checks import expect_config
+from ..mesh import (CleanConfig, boundary_length, clean_open3d, closed_companion, export, filled_area,
+                    to_open3d)
 from ..resources import release_memory
-from .chunked import (_ChunkContext, _box_visible, _chunk_piece, _chunk_task, _sample_blocks, plan_chunks,
-                      tsdf_fuse_chunked)
-from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share, frames_hold_bytes
-from .frames import (FrameStore, _resize_to, _sample_depth_points, depth_view, full_frame, load_frame, load_frames,
-                     nonempty, pixel_footprint, prepare_depth, scene_diagonal)
-from .grid import _GridPatch, _cell_keys, _grid_triangles, grid_fuse, grid_mesh_view
+from .budget import estimate_blocks, estimate_faces, tsdf_voxel_size
+from .chunked import plan_chunks, tsdf_fuse_chunked
+from .config import DepthFrame, FusionConfig, budget_share, frames_hold_bytes
+from .frames import (FrameStore, depth_view, full_frame, load_frame, load_frames, nonempty, pixel_footprint,
+                     prepare_depth, scene_diagonal)
+from .grid import grid_fuse, grid_mesh_view
 from .legacy import legacy_article_fuse
-from .points import _area_samples, _point_cloud, observed_distance, observed_points, oriented_points, surface_report
-from .poisson import _close, _fair_patch, _orient_patches, _patch_colors, _supported, poisson_fuse
-from .tsdf import (_available_bytes, _band_block_keys, _chunk_size, _depth_max, _extract, _frame_blocks, _grid_bytes,
-                   _in_box, _integrate_blocks, _integrate_frame, _integrate_weighted, _new_grid, _normal_band_blocks,
-                   _tsdf_weighted_kernel, estimate_blocks, estimate_faces, planar_normals, stitch_pieces, tsdf_fuse, tsdf_voxel_size)
+from .pieces import stitch_pieces
+from .points import observed_distance, observed_points, oriented_points, surface_report
+from .poisson import poisson_fuse
+from .tsdf import planar_normals, tsdf_fuse
 
 log = logging.getLogger("photorecon")
 
@@ -65,7 +66,6 @@ def fuse_dataset(root, out, cfg: FusionConfig | None = None, clean_cfg=None, dep
     from ..io.dataset import Dataset
     from ..io.output import output_folder
     from ..layout import Layout
-    from ..mesh import CleanConfig
     from ..report.preview import render_preview
 
     cfg = expect_config(cfg, FusionConfig, "cfg")
@@ -111,8 +111,6 @@ def fuse_to_files(frames: list[DepthFrame], cfg: FusionConfig, clean_cfg, layout
     Once fused, each entry of ``frames`` is replaced by the frame with its depth map only (the surface report
     needs no more): the colour, confidence and normal maps are freed before the cleaning unless the caller
     holds the frames elsewhere."""
-    from ..mesh import boundary_length, clean_open3d, export, filled_area, to_open3d
-
     fused = fuse(frames, cfg, sparse_points, executor, dataset, work_dir)
     if isinstance(frames, list):
         frames[:] = [DepthFrame(f.view, f.depth) for f in frames]
@@ -148,8 +146,6 @@ def write_closed(mesh: trimesh.Trimesh, clean_cfg, layout, formats: tuple[str, .
     ``clean_cfg.closed`` is "off": the watertight companion of ``mesh`` (``mesh.closed_companion``) written to
     ``layout.mesh_closed(fmt)`` for each format; returns its facts (``file``, ``watertight``, ``filled_area``,
     ``faces``), or None after removing any such file an earlier run left."""
-    from ..mesh import closed_companion, export
-
     metadata = mesh.metadata if metadata is None else metadata
     if getattr(clean_cfg, "closed", "off") == "off" or (metadata.get("scene") or {}).get("detected") != "object":
         for fmt in formats:

@@ -15,8 +15,9 @@ from ..cameras import View
 from ..errors import NoDepthError
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
 from .frames import load_frame, nonempty
-from .tsdf import (_band_block_keys, _depth_max, _extract, _integrate_frame, _new_grid, chunk_core, stitch_pieces,
-                   tsdf_voxel_size)
+from .budget import _band_block_keys, tsdf_voxel_size
+from .pieces import chunk_core, stitch_pieces
+from .tsdf import _depth_max, _extract, _integrate_frame, _new_grid
 
 log = logging.getLogger("photorecon")
 

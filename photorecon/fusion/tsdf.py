@@ -5,11 +5,21 @@ with each pixel weighted by its confidence map when there is one (MVS, a compile
 own storage); marching cubes extracts the zero level set. The voxel size defaults to ``voxel_footprints``
 pixel footprints (the median ``z / f`` of the depth maps, at their own resolution, over the central part of
 each view: the surface the camera looks at), coarsened with a warning only when the grid would not fit in
-memory. The legacy ``ScalableTSDFVolume`` is not used: with Open3D 0.20 on the CPU it extracts an empty mesh.
+memory (``fusion.budget``). The legacy ``ScalableTSDFVolume`` is not used: with Open3D 0.20 on the CPU it
+extracts an empty mesh.
 Where a depth map has normals (PatchMatch) the signed distance is measured to each pixel's tangent plane
 (``normal_sdf``), not along its ray, where the depth map shows that plane going on behind the pixel
 (``planar_normals``): surfaces seen at grazing angles (the ground in front of a facade) then keep a band
 thicker than a voxel and come out whole, and no fin grows behind an object's rim.
+
+Two drivers share the integration, the extraction and the pieces (``fusion.pieces``): ``tsdf_fuse`` here, with
+the frames in memory, and ``chunked.tsdf_fuse_chunked``, one task per chunk reading the depth maps from disk.
+They stay two: ``tsdf_fuse`` plans its chunks from every frame's exact block coordinates (computed once, with
+the frames held) and splits space only when the grid exceeds its budget, into chunks sized to that budget; the
+tasks plan from sampled surface points (the frames are not held), in chunks of a fixed size, and each task
+chooses and reads the frames that reach its chunk. Making ``tsdf_fuse`` a special case of the tasks would
+change its chunks (and so the order of the stitched mesh's vertices before ``fuse``'s canonical order), read
+every depth map again per chunk, and need a dataset on disk, which ``tsdf_fuse``'s callers do not have.
 """
 from __future__ import annotations
 
@@ -20,130 +30,18 @@ from dataclasses import replace
 import numpy as np
 import trimesh
 
-from ..arrays import unique_rows, unique_sorted
-from ..cameras import backproject_depth, camera_center
+from ..arrays import unique_rows
+from ..cameras import backproject_depth
 from ..errors import BadArgumentError, EmptyMeshError, NoDepthError
 from ..jit import njit, prange
 from ..progress import bar
-from ..resources import available_bytes, release_memory
+from ..resources import release_memory
+from .budget import tsdf_voxel_size
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share
-from .frames import FrameStore, _sample_depth_points, full_frame, nonempty, pixel_footprint, scene_diagonal
-from .grid import _cell_keys
+from .frames import FrameStore, full_frame, nonempty
+from .pieces import _chunk_size, _in_box, chunk_core, stitch_pieces
 
 log = logging.getLogger("photorecon")
-
-
-def _available_bytes() -> int:
-    return available_bytes()
-
-
-def _band_block_keys(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
-    """Unique ``_cell_keys`` of the voxel blocks that the frames' sampled surface points, moved by -trunc, 0 and
-    +trunc along their rays (the truncation band), fall in (with ``trunc`` = 0: the surface's blocks)."""
-    block = voxel * _BLOCK_RES
-    keys = [np.zeros(0, np.int64)]
-    for f in frames:
-        pts = _sample_depth_points(f, 20000)
-        if not len(pts):
-            continue
-        ray = pts - camera_center(f.view.cam_from_world)
-        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-        shifts = (-trunc, 0.0, trunc) if trunc > 0 else (0.0,)
-        keys.append(unique_sorted(_cell_keys(np.concatenate([pts + s * ray for s in shifts]), block)))
-    return unique_sorted(np.concatenate(keys))
-
-
-# Marching cubes' faces per voxel block that the surface crosses (a block of 16^3 voxels; measured: 300 on the
-# synthetic blob at two voxel sizes), and the fusion's peak bytes per face of the mesh: extraction, stitching,
-# the Open3D copy, its cleaning and hole filling (measured: 200 on Herz-Jesu-P8 before holes were filled; with
-# hole filling, gold_cape's open scene peaked at 2.1 GB for 5.2 M faces estimated at 200, of which about 0.35 GB
-# is the process without a mesh: about 330 a face)
-FACES_PER_SURFACE_BLOCK = 540
-MESH_BYTES_PER_FACE = 300
-
-
-def estimate_faces(frames: list[DepthFrame], voxel: float) -> int:
-    """The fused mesh's face count at ``voxel``, before fusing: the voxel blocks the depth maps' sampled surface
-    points fall in (each view's surface: a block two views see counts once) x ``FACES_PER_SURFACE_BLOCK``. It
-    follows the surface's area over the voxel's square, not the number of views."""
-    return int(len(_band_block_keys(frames, voxel, 0.0)) * FACES_PER_SURFACE_BLOCK)
-
-
-def estimate_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> int:
-    """Count the voxel blocks the depth maps touch (sampled), with the truncation band: the grid's size."""
-    n = len(_band_block_keys(frames, voxel, trunc))
-    # sampled pixels miss blocks between samples when a pixel is smaller than a block: scale up
-    return int(n * 1.5) + 64
-
-
-def _grid_bytes(frames: list[DepthFrame], voxel: float, trunc_voxels: float) -> tuple[int, int]:
-    n_blocks = estimate_blocks(frames, voxel, trunc_voxels * voxel)
-    return n_blocks, n_blocks * _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # hash map and extraction buffers
-
-
-def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
-                    sparse_points: np.ndarray | None = None) -> tuple[float, int]:
-    """The TSDF voxel size and the estimated number of voxel blocks.
-
-    ``cfg.voxel_size`` when given (refused, naming the memory it needs, when the grid would not fit);
-    else ``cfg.voxel_footprints`` pixel footprints (``pixel_footprint``), or the scene diagonal /
-    ``cfg.voxels_across`` when that is set. An automatic voxel is coarsened, with a warning stating the voxel
-    chosen, only when its grid would exceed ``cfg.memory_limit_gb`` (default 60% of the available memory)."""
-    limit = cfg.memory_limit_gb * (1 << 30) if cfg.memory_limit_gb else 0.6 * _available_bytes()
-    if cfg.voxel_size is not None:
-        voxel = float(cfg.voxel_size)
-        if not voxel > 0:
-            raise BadArgumentError(f"voxel size: expected > 0, got {voxel}")
-        diag = scene_diagonal(frames, sparse_points)
-        if voxel > 0.5 * diag:  # a grid of one or two voxels across: no surface to extract
-            raise BadArgumentError(f"voxel size {voxel:.4g} is larger than the scene, which is about {diag:.3g} "
-                                   f"across; use a smaller --voxel-size (e.g. {diag / 300:.3g}: 300 voxels across)")
-        n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
-        if need > limit:
-            raise BadArgumentError(f"voxel size {voxel:.4g} needs about {need / 2**30:.1f} GB for {n_blocks} voxel "
-                                   f"blocks, more than the {limit / 2**30:.1f} GB allowed; use a larger --voxel-size")
-        return voxel, n_blocks
-    if cfg.voxels_across:
-        voxel = scene_diagonal(frames, sparse_points) / cfg.voxels_across
-    else:
-        if not cfg.voxel_footprints > 0:
-            raise BadArgumentError(f"voxel footprints: expected > 0, got {cfg.voxel_footprints}")
-        voxel = cfg.voxel_footprints * pixel_footprint(frames)
-    if not voxel > 0:
-        raise NoDepthError("the depth maps give no scale (zero footprint): nothing to fuse")
-    first = voxel
-    n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
-    for _ in range(30):
-        if need <= limit:
-            break
-        # the blocks cover surfaces: their count falls about with the square of the voxel
-        voxel *= max(1.1, 1.05 * np.sqrt(need / limit))
-        n_blocks, need = _grid_bytes(frames, voxel, cfg.trunc_voxels)
-    else:
-        raise BadArgumentError(f"no voxel size up to {voxel:.4g} fits the grid in {limit / 2**30:.1f} GB; "
-                               "set --memory-limit-gb or --voxel-size")
-    if voxel != first:
-        log.warning("tsdf: a %.4g voxel would need more than the %.1f GB allowed; coarsened to voxel %.4g "
-                    "(%d blocks, about %.1f GB; --voxel-size or --memory-limit-gb to choose)", first,
-                    limit / 2**30, voxel, n_blocks, need / 2**30)
-    mesh_budget = budget_share(cfg, "mesh")
-    if mesh_budget:
-        first = voxel
-        faces = estimate_faces(frames, voxel)
-        for _ in range(30):
-            if faces * MESH_BYTES_PER_FACE <= mesh_budget:
-                break
-            # faces follow the surface's area over the voxel's square
-            voxel *= max(1.05, 1.02 * np.sqrt(faces * MESH_BYTES_PER_FACE / mesh_budget))
-            faces = estimate_faces(frames, voxel)
-        if voxel != first:
-            n_blocks, _ = _grid_bytes(frames, voxel, cfg.trunc_voxels)
-            log.warning("tsdf: a %.4g voxel would make a mesh of about %.1f M faces, more than --fusion-memory "
-                        "%.3g GB holds; coarsened to voxel %.4g (about %.1f M faces; a larger --fusion-memory "
-                        "keeps the finer voxel)", first, estimate_faces(frames, first) / 1e6, cfg.memory_gb, voxel,
-                        faces / 1e6)
-    return voxel, n_blocks
-
 
 
 @njit(cache=True, inline="always")
@@ -475,10 +373,6 @@ def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cf
     vbg.integrate(c, depth, color, K, K, T, 1.0, depth_max, float(cfg.trunc_voxels))
 
 
-def _in_box(coords: np.ndarray, lo, hi) -> np.ndarray:
-    return np.all((coords >= lo) & (coords < hi), axis=1)
-
-
 def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float,
                      blocks: tuple[np.ndarray, np.ndarray] | None = None) -> int:
     """Integrate one frame into ``vbg`` (confidence-weighted when it has a confidence map); only the blocks it
@@ -489,17 +383,6 @@ def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_
         coords = coords[_in_box(coords, blocks[0], blocks[1])]
     _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
     return int(len(coords))
-
-
-def chunk_core(V: np.ndarray, F: np.ndarray, C: np.ndarray | None, lo: np.ndarray, hi: np.ndarray):
-    """A chunk's mesh trimmed to its core: the triangles whose centroid lies in [lo, hi) (scene units), and
-    only the vertices they use (colours ``C`` with them). Chunks that share a boundary keep each triangle once."""
-    cen = V[F].mean(axis=1)
-    F = F[np.all((cen >= lo) & (cen < hi), axis=1)]
-    used = unique_sorted(F)
-    remap = np.full(len(V), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    return V[used], remap[F], (C[used] if C is not None else None)
 
 
 def _extract(vbg, cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -593,35 +476,3 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
     out.metadata["mesher"] = "tsdf"
     out.metadata["chunks"] = len(boxes) if chunk else 1
     return out
-
-
-def _chunk_size(blocks: np.ndarray, max_blocks: int) -> int:
-    """The largest cubic chunk size (in blocks, a power of two) whose fullest chunk, with the one block layer
-    around it, holds at most ``max_blocks`` of ``blocks`` (at least 2)."""
-    span = int((blocks.max(0) - blocks.min(0)).max()) + 1
-    size = 1 << max(1, int(np.ceil(np.log2(max(span, 2)))))
-    while size > 2:
-        ids, counts = unique_rows(np.floor_divide(blocks, size), return_counts=True)
-        worst = ids[np.argmax(counts)]
-        if counts.max() * ((size + 2) / size) ** 2 <= max_blocks and \
-                _in_box(blocks, worst * size - 1, (worst + 1) * size + 1).sum() <= max_blocks:
-            break
-        size //= 2
-    return size
-
-
-def stitch_pieces(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]) -> trimesh.Trimesh:
-    """One mesh from chunk pieces: faces concatenated, vertices at the same position (a chunk border: the
-    same marching-cubes vertex computed on both sides) merged into one."""
-    pieces = [p for p in pieces if len(p[1])]
-    if not pieces:
-        raise EmptyMeshError("TSDF fusion produced no triangle: check that the depth maps and poses agree "
-                             "(lower --weight-threshold or use a larger --voxel-size)")
-    offsets = np.cumsum([0] + [len(p[0]) for p in pieces])
-    V = np.concatenate([p[0] for p in pieces])
-    F = np.concatenate([p[1].astype(np.int64) + o for p, o in zip(pieces, offsets)])
-    has_color = all(p[2] is not None and len(p[2]) == len(p[0]) for p in pieces)
-    uniq, first, inv = np.unique(V, axis=0, return_index=True, return_inverse=True)
-    F = inv.ravel()[F]
-    C = np.concatenate([p[2] for p in pieces])[first] if has_color else None
-    return trimesh.Trimesh(uniq.astype(np.float64), F, vertex_colors=C, process=False)
