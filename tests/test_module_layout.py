@@ -1,0 +1,107 @@
+"""The layout of the fusion, mesh and metrics packages: no import cycles among their modules (function-level
+imports included), the foundation's transform imported by the stages that need it, modules of at most 500
+lines, and the public names of ``photorecon.metrics`` and ``photorecon.mesh`` where users import them."""
+import ast
+from pathlib import Path
+
+import pytest
+
+import photorecon
+
+ROOT = Path(photorecon.__file__).parent
+AREA = ["fusion", "mesh", "metrics"]
+
+
+def _module(path: Path) -> str:
+    rel = path.relative_to(ROOT.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """The photorecon modules ``path`` imports, anywhere in it (a function's imports too)."""
+    mod = _module(path)
+    pkg = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")
+                base = base[:len(base) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            if name.startswith("photorecon"):
+                out.add(name)
+                out.update(f"{name}.{a.name}" for a in node.names)  # "from . import x": the module x
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.startswith("photorecon"))
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    files = [p for sub in AREA for p in (ROOT / sub).rglob("*.py")] + [ROOT / "transform.py"]
+    mods = {_module(p): p for p in files}
+    # a module's imports, each counted as the modules of the area it names (a package: its __init__)
+    return {m: {i for i in _imports(p) if i in mods and i != m} for m, p in mods.items()}
+
+
+def test_no_import_cycles_in_fusion_mesh_metrics():
+    graph = _graph()
+    # a package's __init__ re-exports its modules: an edge into a package stands for its __init__ only, and an
+    # __init__ importing its own modules is not a cycle with them, so leave those edges out
+    edges = {m: {i for i in deps if not (m in {"photorecon.fusion", "photorecon.mesh", "photorecon.metrics"}
+                                         and i.startswith(m + "."))} for m, deps in graph.items()}
+    state: dict[str, int] = {}
+    path: list[str] = []
+
+    def visit(m):
+        state[m] = 1
+        path.append(m)
+        for d in sorted(edges.get(m, ())):
+            if state.get(d) == 1:
+                raise AssertionError("import cycle: " + " -> ".join(path[path.index(d):] + [d]))
+            if not state.get(d):
+                visit(d)
+        path.pop()
+        state[m] = 2
+
+    for m in sorted(edges):
+        if not state.get(m):
+            visit(m)
+
+
+def test_mesh_modules_do_not_import_clean_or_fusion():
+    """The cleaning sits on the hole filling, never under it; mesh/ does not reach up into fusion/."""
+    for p in (ROOT / "mesh").glob("*.py"):
+        deps = _imports(p)
+        if p.stem not in ("__init__", "clean", "texture"):
+            assert "photorecon.mesh.clean" not in deps, p.name
+        assert not any(d.startswith("photorecon.fusion") for d in deps), p.name
+
+
+def test_scale_takes_umeyama_from_the_foundation():
+    deps = _imports(ROOT / "poses" / "scale.py")
+    assert "photorecon.transform" in deps and not any(d.startswith("photorecon.metrics") for d in deps)
+    from photorecon import metrics, transform
+
+    assert metrics.umeyama is transform.umeyama
+
+
+@pytest.mark.parametrize("sub", AREA)
+def test_modules_at_most_500_lines(sub):
+    long = {p.name: n for p in (ROOT / sub).rglob("*.py") if (n := len(p.read_text().splitlines())) > 500}
+    assert not long, long
+
+
+def test_public_names_where_users_import_them():
+    from photorecon import mesh, metrics
+
+    for name in ("mesh_metrics", "cloud_metrics", "load_reference", "pose_metrics", "align_cameras", "depth_metrics",
+                 "distance_to", "sample_surface", "covisible", "two_view_depth_scores", "disparity_scores",
+                 "evaluate_reconstruction", "umeyama"):
+        assert callable(getattr(metrics, name)), name
+    for name in mesh.__all__:
+        assert hasattr(mesh, name), name
