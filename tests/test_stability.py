@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 _PROBE = """
@@ -63,11 +65,14 @@ def _mesh(parts):
     return trimesh.Trimesh(np.concatenate(Vs), np.concatenate(Fs), process=False)
 
 
+@pytest.mark.xfail(strict=True, reason="a known tipping point: debris is measured against the largest piece, which a "
+                   "one-voxel bridge between two big halves doubles (docs/benchmarks.md, Stability)")
 def test_debris_and_main_surface_do_not_hinge_on_a_thin_bridge_between_two_big_pieces():
-    """The object's surface fused as two big halves, and a hundred small pieces along it of 0.3% of a half's area.
-    Whether a one-voxel bridge joins the halves (a 1-ulp change of the fused grid can make or break one) used to
-    double the size the pieces were measured against, turning every small piece into debris: they are now
-    measured against the whole surface's area, which a bridge barely changes."""
+    """The object's surface fused as two big halves, and small pieces along it of 0.3% of a half's area.
+    Whether a one-voxel bridge joins the halves (a 1-ulp change of the fused grid can make or break one)
+    doubles the size the pieces are measured against and so turns every small piece into debris. Measuring
+    them against the whole surface instead holds here, but lowered the dark walnut's F@1mm from 0.866 to 0.812,
+    so the rule stays as it is until one is found that keeps both."""
     import numpy as np
 
     from photorecon.mesh import floater_mask, to_open3d

@@ -30,9 +30,9 @@ log = logging.getLogger("photorecon")
 class CleanConfig:
     """Settings of the cleaning stage."""
 
-    min_component: float | None = field(default=None, metadata={"help": "components below this fraction of the surface's area (all components together) are dropped when far from the larger ones (default: 0.05; grid: off)", "range": (0.0, 1.0)})
+    min_component: float | None = field(default=None, metadata={"help": "components below this fraction of the largest's area are dropped when far from it (default: 0.05; grid: off)", "range": (0.0, 1.0)})
     floater_distance: float = field(default=0.05, metadata={"help": "a small component farther than this from the main surface is a floater and dropped; fraction of the scene size", "range": (0.0, 100.0)})
-    min_detail: float = field(default=0.002, metadata={"help": "components with less area than this fraction of the surface's (all components together) are dropped wherever they are (debris)", "range": (0.0, 1.0)})
+    min_detail: float = field(default=0.002, metadata={"help": "components with less area than this fraction of the largest are dropped wherever they are (debris)", "range": (0.0, 1.0)})
     fill_holes: float = field(default=0.0, metadata={"help": "fill holes up to this radius, scene units (0 = the --fill-holes-voxels default)", "range": (0.0, None)})
     fill_holes_voxels: float = field(default=10.0, metadata={"help": "TSDF meshes: fill holes up to this radius, voxels (0 = off, for object captures too)", "range": (0.0, 100_000.0)})
     fill_object_voxels: float = field(default=0.0, metadata={"help": "TSDF meshes of an object capture: fill holes up to this radius, voxels (0 = as --fill-holes-voxels)", "range": (0.0, 100_000.0)})
@@ -150,24 +150,21 @@ def camera_centres(cameras) -> np.ndarray | None:
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
     """Per triangle of the Open3D mesh ``m``: True where it belongs to debris or a floater.
 
-    Components are connected triangles; their size is their area relative to the whole surface's (all
-    components together: not to the largest component's, which a one-voxel bridge between two big pieces, made
-    or broken by a rounding difference, would halve or double). The *main surface* is the largest component
-    and every component of at least ``min_component`` of the whole. A smaller component is a floater when
+    Components are connected triangles; their size is their area relative to the largest. The *main surface*
+    is every component of at least ``min_component`` of the largest. A smaller component is a floater when
     its gap to the main surface (the nearest pair of vertices) exceeds ``floater_distance`` x the scene
     size: the extent of the main surface (its area-weighted 1-99 percentile box diagonal) or, with
     ``cameras``, the median camera distance to it when that is smaller. Small components within that gap
-    are details and kept, unless below ``min_detail`` of the whole (debris)."""
+    are details and kept, unless below ``min_detail`` of the largest (debris)."""
     from scipy.spatial import cKDTree
 
     labels, areas = triangle_components(np.asarray(m.vertices), np.asarray(m.triangles))
     n = len(areas)
     if n < 2:
         return np.zeros(len(labels), bool)
-    rel = areas / areas.sum()
+    rel = areas / areas.max()
     main = rel >= min_component
-    main[np.argmax(areas)] = True
-    drop = (rel < min_detail) & ~main
+    drop = rel < min_detail
     small = np.flatnonzero(~main & ~drop)
     if len(small):
         V = np.asarray(m.vertices)
