@@ -789,7 +789,7 @@ def test_fusion_memory_budget_coarsens_the_voxel_and_keeps_the_surface(frames, g
             peak = tracemalloc.get_traced_memory()[1]
         finally:
             tracemalloc.stop()
-    assert any("--fusion-memory" in r.getMessage() for r in caplog.records)
+    assert any("--memory-gb" in r.getMessage() for r in caplog.records)
     voxel = small.metadata["voxel_size"]
     assert voxel > 1.3 * full.metadata["voxel_size"]
     assert estimate_faces(frames, voxel) * MESH_BYTES_PER_FACE <= share

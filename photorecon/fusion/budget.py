@@ -1,7 +1,7 @@
 """The TSDF's voxel size and what it costs: the voxel blocks the depth maps touch (sampled), the grid's bytes
 and the mesh's faces before fusing, and the voxel chosen (``tsdf_voxel_size``): ``--voxel-size`` when given
 (refused when its grid would not fit), else a few pixel footprints, coarsened with a warning only when the grid,
-or the mesh under ``--fusion-memory``, would not fit."""
+or the mesh under ``--memory-gb``, would not fit."""
 from __future__ import annotations
 
 import logging
@@ -120,8 +120,8 @@ def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
             faces = estimate_faces(frames, voxel)
         if voxel != first:
             n_blocks, _ = _grid_bytes(frames, voxel, cfg.trunc_voxels)
-            log.warning("tsdf: a %.4g voxel would make a mesh of about %.1f M faces, more than --fusion-memory "
-                        "%.3g GB holds; coarsened to voxel %.4g (about %.1f M faces; a larger --fusion-memory "
+            log.warning("tsdf: a %.4g voxel would make a mesh of about %.1f M faces, more than --memory-gb "
+                        "%.3g GB holds; coarsened to voxel %.4g (about %.1f M faces; a larger --memory-gb "
                         "keeps the finer voxel)", first, estimate_faces(frames, first) / 1e6, cfg.memory_gb, voxel,
                         faces / 1e6)
     return voxel, n_blocks
