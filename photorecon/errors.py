@@ -14,6 +14,8 @@ when run again.
 """
 from __future__ import annotations
 
+from ._disk import device, is_no_space, size_text
+
 
 class PhotoreconError(Exception):
     """Base class. ``exit_code`` is the CLI's exit status for this failure class."""
@@ -78,13 +80,18 @@ def from_os_error(exc: OSError, out=None) -> PhotoreconError:
             inside_out = Path(exc.filename).resolve().is_relative_to(Path(out).resolve())
         except (OSError, ValueError):
             pass
-    from .io.space import is_no_space, no_space_error
-
     if is_no_space(exc):  # a full disk (numpy's short write has no errno nor file); the file may be a copy's source
         return no_space_error(out or exc.filename or ".")
     if inside_out or exc.errno == errno.EROFS:
         return OutputError(f"{name}: {what}; check the output folder's space and permissions")
     return InputDataError(f"{name}: {what}")
+
+
+def no_space_error(path, need: int | None = None) -> OutputError:
+    """The one-line error for a write to ``path`` that the disk could not hold (``need``: bytes it needed)."""
+    needed = f"; about {size_text(need)} needed" if need else ""
+    return OutputError(f"{path}: no space left on device {device(path)}{needed}; free some space or choose an "
+                       "output folder on another device")
 
 
 class TextureError(PhotoreconError):
