@@ -1,6 +1,8 @@
-"""The layout of the fusion, mesh and metrics packages: no import cycles among their modules (function-level
-imports included), the foundation's transform imported by the stages that need it, modules of at most 500
-lines, and the public names of ``photorecon.metrics`` and ``photorecon.mesh`` where users import them."""
+"""The layout of the fusion, mesh, metrics and poses packages: no import cycles among their modules
+(function-level imports included; ``if TYPE_CHECKING:`` imports, which never run, left out), the foundation's
+transform imported by the stages that need it, modules of at most 500 lines (the SfM modules 350), and the
+public names of ``photorecon.metrics``, ``photorecon.mesh`` and ``photorecon.poses.sfm`` where users import
+them. The import direction between the top-level packages: tests/test_layers.py."""
 import ast
 from pathlib import Path
 
@@ -10,6 +12,8 @@ import photorecon
 
 ROOT = Path(photorecon.__file__).parent
 AREA = ["fusion", "mesh", "metrics"]
+# structure from motion: run_sfm and one module per stage
+SFM_MODULES = ["sfm", "_colmap", "extract", "match", "mapping", "undistort", "sfm_inputs", "retrieval"]
 
 
 def _module(path: Path) -> str:
@@ -20,12 +24,25 @@ def _module(path: Path) -> str:
     return ".".join(parts)
 
 
+def _runtime_nodes(tree: ast.AST):
+    """Every node of ``tree`` except the bodies of ``if TYPE_CHECKING:`` blocks."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                stack.extend(child.orelse)
+            else:
+                stack.append(child)
+
+
 def _imports(path: Path) -> set[str]:
     """The photorecon modules ``path`` imports, anywhere in it (a function's imports too)."""
     mod = _module(path)
     pkg = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in _runtime_nodes(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = pkg.split(".")
@@ -41,19 +58,14 @@ def _imports(path: Path) -> set[str]:
     return out
 
 
-def _graph() -> dict[str, set[str]]:
-    files = [p for sub in AREA for p in (ROOT / sub).rglob("*.py")] + [ROOT / "transform.py"]
+def _graph(area: list[str]) -> dict[str, set[str]]:
+    files = [p for sub in area for p in (ROOT / sub).rglob("*.py")] + [ROOT / "transform.py"]
     mods = {_module(p): p for p in files}
     # a module's imports, each counted as the modules of the area it names (a package: its __init__)
     return {m: {i for i in _imports(p) if i in mods and i != m} for m, p in mods.items()}
 
 
-def test_no_import_cycles_in_fusion_mesh_metrics():
-    graph = _graph()
-    # a package's __init__ re-exports its modules: an edge into a package stands for its __init__ only, and an
-    # __init__ importing its own modules is not a cycle with them, so leave those edges out
-    edges = {m: {i for i in deps if not (m in {"photorecon.fusion", "photorecon.mesh", "photorecon.metrics"}
-                                         and i.startswith(m + "."))} for m, deps in graph.items()}
+def _assert_no_cycle(edges: dict[str, set[str]]) -> None:
     state: dict[str, int] = {}
     path: list[str] = []
 
@@ -71,6 +83,20 @@ def test_no_import_cycles_in_fusion_mesh_metrics():
     for m in sorted(edges):
         if not state.get(m):
             visit(m)
+
+
+def test_no_import_cycles_in_fusion_mesh_metrics():
+    graph = _graph(AREA)
+    # a package's __init__ re-exports its modules: an edge into a package stands for its __init__ only, and an
+    # __init__ importing its own modules is not a cycle with them, so leave those edges out
+    edges = {m: {i for i in deps if not (m in {"photorecon.fusion", "photorecon.mesh", "photorecon.metrics"}
+                                         and i.startswith(m + "."))} for m, deps in graph.items()}
+    _assert_no_cycle(edges)
+
+
+def test_no_import_cycles_in_poses():
+    """The SfM stage modules take pycolmap from ``poses/_colmap.py``, never from ``sfm.py``, which imports them."""
+    _assert_no_cycle(_graph(["poses"]))
 
 
 def test_mesh_modules_do_not_import_clean_or_fusion():
@@ -94,6 +120,32 @@ def test_scale_takes_umeyama_from_the_foundation():
 def test_modules_at_most_500_lines(sub):
     long = {p.name: n for p in (ROOT / sub).rglob("*.py") if (n := len(p.read_text().splitlines())) > 500}
     assert not long, long
+
+
+def test_sfm_modules_at_most_350_lines():
+    long = {m: n for m in SFM_MODULES if (n := len((ROOT / "poses" / f"{m}.py").read_text().splitlines())) > 350}
+    assert not long, long
+
+
+def test_sfm_names_importable_where_they_are_imported():
+    """Every name imported from ``photorecon.poses.sfm`` in the package, the tests, the tools and the docs."""
+    import re
+
+    from photorecon.poses import sfm
+
+    names = set()
+    for path in [*ROOT.rglob("*.py"), *(ROOT.parent / "tests").glob("*.py"), *(ROOT.parent / "tools").glob("*.py")]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("sfm") and (
+                    node.module in ("photorecon.poses.sfm", "photorecon.sfm", "poses.sfm")
+                    or (node.level and node.module == "sfm" and path.parent.name == "poses")):
+                names.update(a.name for a in node.names)
+    for doc in (ROOT.parent / "docs").rglob("*.md"):
+        for found in re.findall(r"from photorecon(?:\.poses)?\.sfm import ([\w, ]+)", doc.read_text()):
+            names.update(n.strip() for n in found.split(","))
+    assert {"SfMConfig", "run_sfm", "extract", "match"} <= names
+    missing = sorted(n for n in names if not hasattr(sfm, n))
+    assert not missing, missing
 
 
 def test_public_names_where_users_import_them():

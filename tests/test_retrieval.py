@@ -93,7 +93,7 @@ def test_sift_from_the_image_size_keeps_the_features_and_the_registration(sphere
     count stays at the cap and every photo registers, as with the upsampled octave."""
     import pycolmap
 
-    from photorecon.poses import sfm
+    from photorecon.poses import extract  # where sift_first_octave reads the threshold
 
     photos = tmp_path / "photos"
     photos.mkdir()
@@ -104,8 +104,8 @@ def test_sift_from_the_image_size_keeps_the_features_and_the_registration(sphere
     cfg = SfMConfig(max_features=1024, matching="exhaustive")
     assert sift_first_octave(960, 720, cfg.max_image_size, cfg.max_features) == 0
     found = {}
-    for label, per_feature in (("octave0", sfm.OCTAVE0_PIXELS_PER_FEATURE), ("upsampled", 10**9)):
-        monkeypatch.setattr(sfm, "OCTAVE0_PIXELS_PER_FEATURE", per_feature)
+    for label, per_feature in (("octave0", extract.OCTAVE0_PIXELS_PER_FEATURE), ("upsampled", 10**9)):
+        monkeypatch.setattr(extract, "OCTAVE0_PIXELS_PER_FEATURE", per_feature)
         out = tmp_path / label
         res = run_sfm(photos, out, cfg)
         db = pycolmap.Database.open(str(out / "colmap" / "features.db"))

@@ -583,24 +583,25 @@ def test_full_disk_before_sfm_features_is_one_line_and_exit_8(blob_small, small_
 def test_space_check_of_upsampled_sift_covers_the_copies_and_the_features(blob_small, tmp_path, monkeypatch):
     """The second SIFT pass (small photos, 2x upsampled copies) writes the copies and about twice the features:
     the space checked before COLMAP's writer starts (it aborts the process on a full disk) covers both."""
-    from photorecon import sfm
+    from photorecon.poses import extract as extraction  # the module where extract looks up what is patched
+    from photorecon.poses.sfm import SfMConfig
 
     names = sorted(p.name for p in (blob_small / "images").iterdir())
     checked, copies = [], []
-    monkeypatch.setattr(sfm, "check_space", lambda path, need: checked.append(need))
-    upscaled = sfm._upscaled_copies
+    monkeypatch.setattr(extraction, "check_space", lambda path, need: checked.append(need))
+    upscaled = extraction._upscaled_copies
 
     def measured(images_dir, mask_dir, names, s, dst):
         masks = upscaled(images_dir, mask_dir, names, s, dst)
         copies.append(sum(f.stat().st_size for f in dst.rglob("*") if f.is_file()))
         return masks
 
-    monkeypatch.setattr(sfm, "_upscaled_copies", measured)
+    monkeypatch.setattr(extraction, "_upscaled_copies", measured)
     cams = [{"model": "SIMPLE_RADIAL", "params": "", "images": names, "size": [160, 120], "sift_upscale": 2}]
-    db = sfm.extract(blob_small / "images", tmp_path / "features_upsampled.db", cams, sfm.SfMConfig(threads=1))
+    db = extraction.extract(blob_small / "images", tmp_path / "features_upsampled.db", cams, SfMConfig(threads=1))
     written = copies[0] + db.stat().st_size
     assert checked[0] >= written, (checked, copies, db.stat().st_size)
-    assert checked[0] > sfm.features_bytes(blob_small / "images", names, sfm.SfMConfig())
+    assert checked[0] > extraction.features_bytes(blob_small / "images", names, SfMConfig())
 
 
 def test_full_disk_during_mvs_is_one_line_and_keeps_no_partial_file(blob_small, small_disk, capsys):

@@ -1,8 +1,10 @@
 """Camera poses: images in, a sparse model out (``cam_from_world`` per image, intrinsics, 3D points).
 
 - ``ingest``: a photo folder or a video -> the images to use (EXIF focal length, frames sampled from a video).
-- ``sfm``: structure from motion with pycolmap (extract, match, map, undistort) -> ``OUT/sparse``;
-  ``sfm_inputs``: its masks and the upscaled copies of small images.
+- ``sfm``: structure from motion with pycolmap (``run_sfm``, ``SfMConfig``) -> ``OUT/sparse``, one module per
+  stage: ``extract``, ``match`` (with ``retrieval`` for large unordered sets), ``mapping``, ``undistort``;
+  ``_colmap``: the lazy pycolmap import they share; ``sfm_inputs``: the masks and the upscaled copies of small
+  images.
 - ``triangulate``: given cameras (COLMAP, transforms.json, ...) -> their sparse points, poses kept.
 - ``scale``: the model in metres (a known distance, a marker, GPS) -> the scaled model and transforms.json.
 """

@@ -31,7 +31,7 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
 FLAT_STD = 2.0  # grey levels: a photo whose pixels vary less than this is one flat colour (nothing to match)
 # COLMAP's SIFT (pycolmap 4.2, VLFeat's affine-shape detector) crashes the process (SIGSEGV) on an image whose short
 # side is under 16 pixels as it works on it, whatever the first octave (measured: 15x15, 1600x15 crash; 16x16,
-# 1600x16 do not): photos under twice that are left out, and extraction never downsizes one below it (sfm.extract)
+# 1600x16 do not): photos under twice that are left out, and extraction never downsizes one below it (sift_max_size)
 MIN_SIDE = 32
 # long side / short side: a 20000x20 strip is 1600x1.6 once downsized for SIFT; beyond 20:1 (a 360-degree
 # panorama is 2:1 to 8:1) a photo is no view SfM can use

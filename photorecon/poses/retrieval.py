@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._colmap import _pycolmap
+
 log = logging.getLogger("photorecon")
 
 # descriptors sampled from the features database to train the visual words: at most this many in all ...
@@ -32,12 +34,6 @@ INDEX_SAMPLE_PER_IMAGE = 500
 STRONG_INLIERS = 100
 # a photo with fewer verified pairs than this gets a second retrieval round
 WEAK_PAIRS = 3
-
-
-def _pycolmap():
-    from .sfm import _pycolmap as load
-
-    return load()
 
 
 # FAISS's note when COLMAP trains the coarse search index over the visual words (2 sqrt(W) cells for W words,

@@ -1,0 +1,97 @@
+"""SfM's third stage, mapping (``map_model``): incremental mapping, tried again with relaxed thresholds while it
+leaves images out, or global mapping (GLOMAP) for large sets (``choose_mapper``); the largest model is kept."""
+from __future__ import annotations
+
+import logging
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..errors import SfMError
+from ..io.space import check_space
+from ..progress import running
+from ..stages import atomic_dir
+from ._colmap import MB, _pycolmap, no_model_message
+
+if TYPE_CHECKING:
+    from .sfm import SfMConfig
+
+log = logging.getLogger("photorecon")
+
+
+def choose_mapper(cfg: SfMConfig, num_images: int) -> str:
+    if cfg.mapper != "auto":
+        return cfg.mapper
+    return "global" if num_images >= cfg.global_min else "incremental"
+
+
+# Incremental mapping tried again with these thresholds, one set after the other, while a model leaves images
+# out: COLMAP's defaults ignore two-view tracks and want 100 inliers to start and 30 to register, too many for
+# a few small photos (12 views of the blob at 320x240, 53-60 degrees apart: 7 -> 12 registered with the first).
+RELAXED_MAPPING = (
+    {"triangulation.ignore_two_view_tracks": False, "mapper.init_min_num_inliers": 50,
+     "mapper.abs_pose_min_num_inliers": 15},
+    {"triangulation.ignore_two_view_tracks": False, "mapper.init_min_num_inliers": 30,
+     "mapper.init_min_tri_angle": 8.0, "mapper.abs_pose_min_num_inliers": 12, "mapper.abs_pose_min_inlier_ratio": 0.15},
+)
+
+
+# Incremental mapping runs on one thread, whatever --threads: bundle adjustment's threads sum in the order they
+# finish, so the same matches gave cameras apart in their last digits (48 synthetic ring views at 320x240, two
+# threads: 3 different models in 3 runs, poses 2e-15 apart) and, from there, now and then another model (another
+# coordinate frame, another mesh). On one thread: the same model, byte for byte, 3 runs of 3, whatever the
+# output folder's history; 9.3-11.0 CPU s against 11.4-12.2 on two threads (2026-11-28, 2 shared cores). On a
+# machine with many cores the mapping's wall time grows towards its CPU time. Global mapping keeps its threads.
+MAPPER_THREADS = 1
+
+
+def _incremental_options(pycolmap, cfg: SfMConfig, fixed_intrinsics: bool, relaxed: dict | None = None):
+    opt = pycolmap.IncrementalPipelineOptions()
+    opt.random_seed = cfg.seed
+    opt.num_threads = MAPPER_THREADS
+    if fixed_intrinsics:
+        opt.ba_refine_focal_length = False
+        opt.ba_refine_principal_point = False
+        opt.ba_refine_extra_params = False
+    for key, value in (relaxed or {}).items():
+        group, _, name = key.rpartition(".")
+        setattr(getattr(opt, group) if group else opt, name, value)
+    return opt
+
+
+def map_model(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool,
+              mapper: str = "incremental") -> Path:
+    """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``.
+    Incremental mapping that leaves images out is tried again with relaxed thresholds (``RELAXED_MAPPING``);
+    the model with the most images is kept."""
+    pycolmap = _pycolmap()
+    pycolmap.set_random_seed(cfg.seed)
+    check_space(model_dir, database.stat().st_size // 2 + MB)
+    n = sum(1 for _ in images_dir.iterdir())
+    with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp, \
+            running(f"SfM {mapper} mapping ({n} photos)"):
+        if mapper == "global":
+            gopt = pycolmap.GlobalPipelineOptions()
+            gopt.random_seed = cfg.seed
+            gopt.num_threads = cfg.threads
+            if fixed_intrinsics:
+                gopt.mapper.bundle_adjustment.refine_focal_length = False
+                gopt.mapper.bundle_adjustment.refine_principal_point = False
+                gopt.mapper.bundle_adjustment.refine_extra_params = False
+            recs = list(pycolmap.global_mapping(str(database), str(images_dir), runs, gopt).values())
+        else:
+            recs = []
+            for i, relaxed in enumerate((None,) + RELAXED_MAPPING):
+                if recs and max(r.num_reg_images() for r in recs) >= n:
+                    break
+                if relaxed:
+                    log.info("mapping: %d of %d images registered; again with relaxed thresholds (%d)",
+                             max((r.num_reg_images() for r in recs), default=0), n, i)
+                run_dir = Path(runs) / str(i)
+                run_dir.mkdir()
+                opt = _incremental_options(pycolmap, cfg, fixed_intrinsics, relaxed)
+                recs += list(pycolmap.incremental_mapping(str(database), str(images_dir), str(run_dir), opt).values())
+        if not recs:
+            raise SfMError(no_model_message(database, n))
+        max(recs, key=lambda r: r.num_reg_images()).write_binary(str(tmp))
+    return model_dir
