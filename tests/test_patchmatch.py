@@ -218,7 +218,10 @@ def test_sources_no_view_selection_used_cost_no_evaluations(blob_small):
     start = patchmatch_view(ref, v, src, srcs, lo, hi, params, 4, seed=1, seeds=ds.model.points_seen_by(v.name),
                             views=views)
     d0 = start[0] > 0
-    assert np.mean(views[d0] >> 4 & 1) < 0.1  # the noise is rarely selected (measured 0.06: the two-source fallback)
+    picked = [np.mean(views[d0] >> j & 1) for j in range(5)]
+    # the noise is selected far less often than any real source: only by the two-source fallback (measured 0.06 to
+    # 0.11 depending on the OpenCV and numba builds, against 0.49 to 0.63 for the real sources)
+    assert picked[4] < 0.15 and picked[4] < 0.3 * min(picked[:4]), picked
     assert np.mean(views[d0] & 0b1111 != 0) > 0.99
     within, evals = {}, {}
     for carry in (False, True):
