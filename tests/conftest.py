@@ -1,4 +1,5 @@
 """Shared fixtures: small synthetic datasets rendered once per test session (no ../shared data)."""
+import ast
 import hashlib
 import os
 
@@ -17,6 +18,45 @@ def tree_hash(folder):
         if p.is_file():
             h.update(p.read_bytes())
     return h.hexdigest()
+
+
+def module_parts(path, root):
+    """The dotted name of the module at ``path`` as a list (``photorecon/io/__init__.py``: ["photorecon", "io"]);
+    ``root``: the package folder (``photorecon``)."""
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    return parts[:-1] if parts[-1] == "__init__" else parts
+
+
+def _runtime_nodes(tree):
+    """Every node of ``tree`` except the bodies of ``if TYPE_CHECKING:`` blocks (they never run)."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                stack.extend(child.orelse)
+            else:
+                stack.append(child)
+
+
+def photorecon_imports(path, root):
+    """The imports of package modules in the source file ``path``, at module level and inside functions: per
+    import (the imported module as a list of names, the names a ``from`` import takes from it, line);
+    relative imports resolved against ``root`` (the package folder)."""
+    parts = module_parts(path, root)
+    pkg = parts if path.name == "__init__.py" else parts[:-1]
+    found = []
+    for node in _runtime_nodes(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            base = pkg[:len(pkg) - node.level + 1] if node.level else []
+            mod = base + (node.module.split(".") if node.module else [])
+            if mod and mod[0] == root.name:
+                found.append((mod, [a.name for a in node.names], node.lineno))
+        elif isinstance(node, ast.Import):
+            found += [(a.name.split("."), [], node.lineno) for a in node.names
+                      if a.name.split(".")[0] == root.name]
+    return found
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -6,8 +6,9 @@ own layer or below, never above (docs/design.md, "Import direction"). ``UPWARD_A
 that are known and not yet moved, each with its reason: a new one fails the test. Among the layers under the
 composition (L2-L5) no two top-level packages import each other, directly or round a loop, except where an
 allowed upward import makes the loop (``CYCLES_ALLOWED``)."""
-import ast
 from pathlib import Path
+
+from conftest import module_parts, photorecon_imports
 
 import photorecon
 
@@ -42,42 +43,13 @@ def _top_names() -> set[str]:
     return {p.stem for p in ROOT.glob("*.py")} | {p.name for p in ROOT.iterdir() if (p / "__init__.py").exists()}
 
 
-def _module(path: Path) -> list[str]:
-    parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
-    return parts[:-1] if parts[-1] == "__init__" else parts
-
-
-def _runtime_nodes(tree: ast.AST):
-    """Every node of ``tree`` except the bodies of ``if TYPE_CHECKING:`` blocks."""
-    stack = [tree]
-    while stack:
-        node = stack.pop()
-        yield node
-        for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
-                stack.extend(child.orelse)
-            else:
-                stack.append(child)
-
-
 def _imports(path: Path) -> list[tuple[str, int]]:
     """The top-level photorecon names ``path`` imports (``from ..io.x import y``, ``from .. import fusion``,
     ``import photorecon.mesh``), with their line numbers."""
-    parts = _module(path)
-    pkg = parts if path.name == "__init__.py" else parts[:-1]
     found = []
-    for node in _runtime_nodes(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom):
-            base = pkg[:len(pkg) - node.level + 1] if node.level else []
-            mod = base + (node.module.split(".") if node.module else [])
-            if not mod or mod[0] != "photorecon":
-                continue
-            # "from photorecon import x": x's module (a name of __init__, such as __version__, counts as __init__)
-            names = [mod[1]] if len(mod) > 1 else [a.name for a in node.names]
-            found += [(n, node.lineno) for n in names]
-        elif isinstance(node, ast.Import):
-            found += [(a.name.split(".")[1], node.lineno) for a in node.names
-                      if a.name.startswith("photorecon.")]
+    for mod, names, line in photorecon_imports(path, ROOT):
+        # "from photorecon import x": x's module (a name of __init__, such as __version__, counts as __init__)
+        found += [(n, line) for n in ([mod[1]] if len(mod) > 1 else names)]
     return found
 
 
@@ -87,7 +59,7 @@ def _edges() -> list[tuple[str, str, str, int]]:
     tops = _top_names()
     out = []
     for path in sorted(ROOT.rglob("*.py")):
-        parts = _module(path)
+        parts = module_parts(path, ROOT)
         src = parts[1] if len(parts) > 1 else "__init__"
         for name, line in _imports(path):
             target = name if name in tops else "__init__"

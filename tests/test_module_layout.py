@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import module_parts, photorecon_imports
+
 import photorecon
 
 ROOT = Path(photorecon.__file__).parent
@@ -17,44 +19,16 @@ SFM_MODULES = ["sfm", "_colmap", "extract", "match", "mapping", "undistort", "sf
 
 
 def _module(path: Path) -> str:
-    rel = path.relative_to(ROOT.parent).with_suffix("")
-    parts = list(rel.parts)
-    if parts[-1] == "__init__":
-        parts = parts[:-1]
-    return ".".join(parts)
-
-
-def _runtime_nodes(tree: ast.AST):
-    """Every node of ``tree`` except the bodies of ``if TYPE_CHECKING:`` blocks."""
-    stack = [tree]
-    while stack:
-        node = stack.pop()
-        yield node
-        for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
-                stack.extend(child.orelse)
-            else:
-                stack.append(child)
+    return ".".join(module_parts(path, ROOT))
 
 
 def _imports(path: Path) -> set[str]:
     """The photorecon modules ``path`` imports, anywhere in it (a function's imports too)."""
-    mod = _module(path)
-    pkg = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
     out = set()
-    for node in _runtime_nodes(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = pkg.split(".")
-                base = base[:len(base) - node.level + 1]
-                name = ".".join(base + ([node.module] if node.module else []))
-            else:
-                name = node.module or ""
-            if name.startswith("photorecon"):
-                out.add(name)
-                out.update(f"{name}.{a.name}" for a in node.names)  # "from . import x": the module x
-        elif isinstance(node, ast.Import):
-            out.update(a.name for a in node.names if a.name.startswith("photorecon"))
+    for mod, names, _ in photorecon_imports(path, ROOT):
+        name = ".".join(mod)
+        out.add(name)
+        out.update(f"{name}.{a}" for a in names)  # "from . import x": the module x
     return out
 
 
