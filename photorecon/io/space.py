@@ -5,8 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .._disk import NO_SPACE_ERRNOS, _existing, device, free_bytes, is_no_space  # noqa: F401
-from .._disk import size_text as _size  # noqa: F401
+from .._disk import free_bytes, is_no_space  # noqa: F401 (is_no_space: io.atomic and stages take it from here)
 from ..errors import no_space_error  # noqa: F401
 
 
