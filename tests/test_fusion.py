@@ -914,3 +914,33 @@ def test_planar_normals_kernel_matches_numpy_reference():
         has = (depth > 0) & np.any(normal != 0, axis=2)
         assert 0.3 * has.sum() < kept.sum() < has.sum()  # some kept, some dropped
         np.testing.assert_array_equal(got, want)
+
+
+def test_coarser_depth_maps_weigh_less_and_leave_the_voxel(frames, gt, monkeypatch):
+    """Depth maps at half the resolution of the others relative to their photos (a depth stage's half-resolution
+    views) weigh a quarter in TSDF fusion and do not coarsen the voxel: with every other view's depth at half
+    resolution and 3 voxels too far, the fused surface stays nearer the truth than with equal weights (mean
+    distance 0.0035 against 0.0144 measured, voxel 0.009)."""
+    import cv2
+
+    from photorecon.fusion import frames as fr
+    from photorecon.fusion import pixel_footprint
+
+    frames = list(frames)
+    voxel = fuse(frames, FusionConfig()).metadata["voxel_size"]
+    mixed = []
+    for i, f in enumerate(frames):
+        if i % 2:
+            h, w = f.depth.shape[0] // 2, f.depth.shape[1] // 2
+            d = cv2.resize(f.depth, (w, h), interpolation=cv2.INTER_NEAREST)
+            d = np.where(d > 0, d + 3 * voxel, 0).astype(np.float32)
+            f = DepthFrame(fr.depth_view(f.view, (h, w)), d, cv2.resize(f.color, (w, h)),
+                           None if f.confidence is None else cv2.resize(f.confidence, (w, h)))
+        mixed.append(f)
+    assert fr.resolution_weights(mixed) == [0.25 if i % 2 else 1.0 for i in range(len(mixed))]
+    assert pixel_footprint(mixed) == pytest.approx(pixel_footprint(frames), rel=0.02)
+    weighted = mesh_metrics(fuse(mixed, FusionConfig()), gt, n_samples=20_000)
+    monkeypatch.setattr(fr, "RESOLUTION_WEIGHT_POWER", 0.0)
+    assert fr.resolution_weights(mixed) == [1.0] * len(mixed)
+    equal = mesh_metrics(fuse(mixed, FusionConfig()), gt, n_samples=20_000)
+    assert weighted.accuracy_mean < 0.5 * equal.accuracy_mean, (weighted.accuracy_mean, equal.accuracy_mean)

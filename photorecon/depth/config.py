@@ -72,6 +72,7 @@ class MVSConfig:
     window: int = field(default=7, metadata={"help": "sweep: ZNCC window size in pixels (odd)", "range": (1, 63), "odd": True})
     best_k: int = field(default=2, metadata={"help": "sweep: aggregate the best k source scores per pixel", "range": (1, 256)})
     depth_views: Literal["auto", "coarse", "all"] = field(default="auto", metadata={"help": "views that get a depth map: auto = enough views to see every sparse point well from --depth-view-coverage directions (a redundant capture computes fewer depth maps; a small one keeps all), and from 40 views kept on, also enough of those to see the coarse surface well (as coarse); coarse = PatchMatch's coarsest round for every view, then enough views to see that dense surface well (for captures whose sparse tracks are short); all = every view"})
+    depth_resolution: Literal["auto", "full"] = field(default="auto", metadata={"help": "depth map resolution: auto = where the coarse surface chose the views (a large capture), half the working resolution for a view whose surface full-resolution views see as finely from a similar direction; full = every map at the working resolution"})
     depth_view_coverage: int = field(default=3, metadata={"help": "--depth-views auto/coarse: chosen views that must see each sparse point (coarse: each coarse surface sample) at a good angle and resolution", "range": (1, 64)})
 
     def __post_init__(self):

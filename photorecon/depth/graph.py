@@ -59,7 +59,8 @@ def filter_task(ctx: MVSContext, name: str) -> dict:
             images = {s: (work.working_grey(ctx, s), ctx.plan[s][0]) for s in ctx.plan[name][1]}
             _, fill_stats = fill_holes(dataclasses.replace(res, sources=checked.sources), sources,
                                        _filter_config(cfg, len(sources)), min(cfg.min_consistent, len(sources)),
-                                       work.working_grey(ctx, name), images, work.mask_at(ctx, name, res.depth.shape))
+                                       work.level_image(ctx, name, res.view), images,
+                                       work.mask_at(ctx, name, res.depth.shape))
             filled, settled = fill_stats["filled"], fill_stats.get("settled", 0)
     d = res.depth
     info = {"before": before, "after": int((d > 0).sum()), "filled": filled, "settled": settled, "err_sum": err_sum,

@@ -99,7 +99,7 @@ class MVSResult(Result):
     seconds_per_view: float
     cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
     cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
-    per_view: dict  # view name -> valid_fraction, sources, size
+    per_view: dict  # view name -> valid_fraction, sources, size (w, h), resolution ("full" or "half") and why
     reused_tasks: int  # tasks whose output an interrupted run had left
     task_seconds: dict  # task key -> seconds
     depth_views: dict  # chosen, of, reason, uncovered_points (--depth-views)
@@ -207,7 +207,11 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         choice = coarse_choice if choice is None else coarse_choice.after(choice)
         model = _restricted(model, _log_choice(choice, cfg))
         views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
-        ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg))
+        levels = {n: choice.level(n) for n in views if choice.level(n)}  # depth maps at half resolution
+        if levels:
+            log.info("mvs: %d of %d depth maps at half resolution (--depth-resolution %s: full-resolution views see "
+                     "their surface as finely)", len(levels), len(views), cfg.depth_resolution)
+        ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg), levels=levels)
     t_graph = time.perf_counter()
     # the bar counts tasks (each view's PatchMatch rounds, then its filter), not views
     results = ex.run(run_task, mvs_tasks(ctx), ctx, desc=f"mvs depth ({cfg.method}, {len(views)} views)", unit="task")
@@ -217,7 +221,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     t_all = time.perf_counter() - t0
     task_seconds = sum(r["seconds"] for k, r in results.items() if not k.startswith("filter:"))
     task_cpu = sum(r.get("cpu_seconds", 0.0) for k, r in results.items() if not k.startswith("filter:"))
-    mp_sources = sum(len(srcs) * wv.intrinsics.width * wv.intrinsics.height / 1e6 for wv, srcs, _, _ in views.values())
+    mp_sources = sum(len(srcs) * wv.intrinsics.width * wv.intrinsics.height / 1e6 / 4 ** work.depth_level(ctx, n)
+                     for n, (wv, srcs, _, _) in views.items())
     consistency: dict = {}
     filtered = {k.partition(":")[2]: r for k, r in results.items() if k.startswith("filter:")}
     if cfg.min_consistent > 0:
@@ -238,6 +243,10 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             skipped[v.name] = "no depth survived filtering"
             continue
         stats[v.name] = {k: r[k] for k in ("valid_fraction", "sources", "size")}
+        why = choice.resolution_reason(v.name) if choice is not None else None
+        stats[v.name]["resolution"] = "half" if work.depth_level(ctx, v.name) else "full"
+        if why:
+            stats[v.name]["resolution_reason"] = why
     if not stats:
         raise NoDepthError("mvs: no depth survived filtering in any view")
     shutil.rmtree(ctx.work, ignore_errors=True)

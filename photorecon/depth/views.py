@@ -15,7 +15,7 @@ counted: a second photo from nearly the same place adds no triangulation angle a
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,6 +34,9 @@ class ViewChoice:
     reason: str  # "all requested", "no sparse points", "no point seen well by two views", "coverage", ...
     uncovered_points: int = 0  # points seen well by fewer chosen views than needed (0 when the cover is complete)
     surface_samples: int | None = None  # --depth-views coarse: the coarse surface's samples that two views see well
+    # per chosen view: (pyramid level of its depth map: 0 = the working resolution, 1 = half; the share of its
+    # coarse surface that full-resolution views see as finely from a similar direction); empty: every view full
+    resolution: dict = field(default_factory=dict)
 
     def after(self, first: "ViewChoice") -> "ViewChoice":
         """This choice, made among the views ``first`` chose: counted against ``first``'s total, both reasons."""
@@ -42,7 +45,22 @@ class ViewChoice:
     def to_dict(self) -> dict:
         d = {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
              "uncovered_points": self.uncovered_points}
+        if self.resolution:
+            d["half_resolution"] = sum(1 for lvl, _ in self.resolution.values() if lvl > 0)
         return d if self.surface_samples is None else {**d, "surface_samples": self.surface_samples}
+
+    def level(self, name: str) -> int:
+        """The pyramid level of view ``name``'s depth map (0: the working resolution, 1: half of it)."""
+        return self.resolution.get(name, (0, 0.0))[0]
+
+    def resolution_reason(self, name: str) -> str | None:
+        """Why view ``name``'s depth map has its resolution (for the report), or None when no choice was made."""
+        if name not in self.resolution:
+            return None
+        lvl, seen = self.resolution[name]
+        share = f"{100 * seen:.0f}% of its surface is seen by full-resolution views within {HALF_MAX_ANGLE_DEG:g} " \
+                f"degrees and {HALF_FOOTPRINT_RATIO:g}x its pixel footprint"
+        return f"half: {share}" if lvl else f"full: only {share}"
 
 
 def _observations(model, views, max_size: int):
@@ -140,6 +158,56 @@ def choose_depth_views(model, cfg) -> ViewChoice:
     keep = taken | ~observed
     uncovered = int(np.count_nonzero(n_counted < need))
     return ViewChoice([names[k] for k in range(n_views) if keep[k]], n_views, "coverage", uncovered)
+
+
+# --depth-resolution auto: a chosen view gets its depth map at half the working resolution when at least
+# HALF_COVERED of the coarse surface it sees well is seen, by a view at full resolution, from within HALF_MAX_ANGLE_DEG
+# of its own ray and at a pixel footprint at most HALF_FOOTPRINT_RATIO times its own: that view resolves the
+# surface at least as finely, and the half-resolution map still confirms it (the geometric filter) and fills in
+# what the full one misses. The views are judged in order of how much surface they see finest, so the finest view
+# of each part stays full; a view that alone sees a part closely stays full; in a ring of 12 cameras (30 degrees
+# apart) no view has a neighbour within 20 degrees, and all stay full
+HALF_COVERED = 0.9
+HALF_MAX_ANGLE_DEG = 20.0
+HALF_FOOTPRINT_RATIO = 1.25
+
+
+def half_resolution_views(vi: np.ndarray, pi: np.ndarray, u: np.ndarray, foot: np.ndarray, w: np.ndarray,
+                          candidates: np.ndarray, n_pts: int) -> dict[int, tuple[int, float]]:
+    """Per candidate view (index into the views of the observations: view ``vi`` sees sample ``pi`` well along the
+    unit direction ``u`` at pixel footprint ``foot``, weight ``w`` = the finest footprint / its own): (level, the
+    share of its observations that full-resolution views already see as finely from a similar direction). The views
+    are judged one at a time, the one with the most weight first; level 1 (half) when that share is at least
+    ``HALF_COVERED``, else 0 (full). Deterministic."""
+    cand = np.flatnonzero(candidates)
+    keep = candidates[vi]
+    vi, pi, u, foot, w = vi[keep], pi[keep], u[keep], foot[keep], w[keep]
+    out: dict[int, tuple[int, float]] = {}
+    if not len(vi):
+        return {int(k): (0, 0.0) for k in cand}
+    order = np.argsort(-np.bincount(vi, weights=w, minlength=len(candidates))[cand], kind="stable")
+    by_view = {int(k): np.flatnonzero(vi == k) for k in cand}
+    # per sample, the full-resolution views' rays and footprints so far (a list per sample: few views each)
+    full_rays: dict[int, list] = {}
+    cos_max = np.cos(np.radians(HALF_MAX_ANGLE_DEG))
+    for k in cand[order]:
+        obs = by_view[int(k)]
+        if not len(obs):
+            out[int(k)] = (0, 0.0)
+            continue
+        seen = np.zeros(len(obs), bool)
+        for j, o in enumerate(obs):
+            for ray, f in full_rays.get(int(pi[o]), ()):
+                if f <= HALF_FOOTPRINT_RATIO * foot[o] and float(ray @ u[o]) >= cos_max:
+                    seen[j] = True
+                    break
+        share = float(seen.mean())
+        half = share >= HALF_COVERED
+        out[int(k)] = (1 if half else 0, share)
+        if not half:
+            for o in obs:
+                full_rays.setdefault(int(pi[o]), []).append((u[o], foot[o]))
+    return out
 
 
 # --depth-views coarse: the surface from PatchMatch's coarsest round
@@ -263,5 +331,9 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
         return ViewChoice(names, n_views, "no coarse surface seen well by two views")
     keep = taken | np.array([n not in maps for n in names])
     uncovered = int(np.count_nonzero(n_counted < need))
+    resolution = {}
+    if cfg.depth_resolution == "auto":
+        levels = half_resolution_views(vi, pi, u, foot[good], w, taken, n_pts)
+        resolution = {names[k]: levels.get(k, (0, 0.0)) for k in range(n_views) if keep[k]}
     return ViewChoice([names[k] for k in range(n_views) if keep[k]], n_views, "coarse depth coverage", uncovered,
-                      surface_samples=int(np.count_nonzero(need)))
+                      surface_samples=int(np.count_nonzero(need)), resolution=resolution)

@@ -47,6 +47,22 @@ class MVSContext:
     work: Path
     out: Path
     filter_sources: dict[str, list[str]] = field(default_factory=dict)  # view -> the views its filter checks
+    # view -> the pyramid level its depth map stops at (0: the working resolution; 1: half of it, a view whose
+    # surface others see as finely: ``views.half_resolution_views``); a view not named: 0
+    levels: dict[str, int] = field(default_factory=dict)
+
+
+def depth_level(ctx: MVSContext, name: str) -> int:
+    """The pyramid level of view ``name``'s depth map (0: the working resolution)."""
+    return ctx.levels.get(name, 0)
+
+
+def view_at(view: View, shape: tuple[int, int]) -> View:
+    """``view`` (a working-resolution view) scaled to a map of ``shape`` (h, w): a depth map at a coarser level."""
+    h, w = shape
+    if (h, w) == (view.intrinsics.height, view.intrinsics.width):
+        return view
+    return dataclasses.replace(view, intrinsics=view.intrinsics.scaled(w, h))
 
 
 def checked_views(ctx: MVSContext, name: str) -> list[str]:
@@ -160,7 +176,7 @@ def finish_depth(ctx: MVSContext, name: str, depth: np.ndarray, conf: np.ndarray
     if normal is not None and not cfg.planar_prior and (cfg.min_texture > 0 or cfg.texture_rel > 0):
         from .planar import relative_texture, textureless  # PatchMatch: no evidence where the window is flat
 
-        grey = working_grey(ctx, name)  # the last round's depth is at the working resolution
+        grey = level_image(ctx, name, view_at(plan_view(ctx, name), depth.shape))  # the depth map's resolution
         if cfg.min_texture > 0:
             depth[textureless(grey, cfg.pm_radius, cfg.min_texture)] = 0
         if cfg.texture_rel > 0:
@@ -179,8 +195,10 @@ def raw_result(ctx: MVSContext, name: str, normal: bool = False, confidence: boo
     """View ``name``'s unfiltered result from ``work/raw``; ``confidence=False`` for a source of the filter, which
     reads only its depth (and normals)."""
     n_path = raw_path(ctx, name, "normal")
-    return DepthResult(load(raw_path(ctx, name, "depth")), load(raw_path(ctx, name, "conf")) if confidence else None,
-                       ctx.plan[name][0], ctx.plan[name][1], load(n_path) if normal and n_path.is_file() else None)
+    depth = load(raw_path(ctx, name, "depth"))
+    return DepthResult(depth, load(raw_path(ctx, name, "conf")) if confidence else None,
+                       view_at(ctx.plan[name][0], depth.shape), ctx.plan[name][1],
+                       load(n_path) if normal and n_path.is_file() else None)
 
 
 

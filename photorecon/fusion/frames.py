@@ -69,9 +69,15 @@ def pixel_footprint(frames: list[DepthFrame]) -> float:
     """The depth maps' pixel footprint on the surfaces the cameras look at, in scene units: per view the
     median ``z / f`` of the valid pixels of its central window (half the width and height; the whole map when
     that window has under 5% valid pixels), with ``f`` of the depth map's own intrinsics; the median over
-    views. Far background at the image borders and outlying sparse points do not move it."""
+    the views whose depth maps have the finest resolution relative to their photo (``DEPTH_SCALE``: the views a
+    depth stage left at half resolution, where others see their surface as finely, do not coarsen it). Far
+    background at the image borders and outlying sparse points do not move it."""
+    scales = [f.view.extra.get(DEPTH_SCALE, 1.0) for f in frames]
+    finest = max(scales, default=1.0)
     per_view = []
-    for f in frames:
+    for f, s in zip(frames, scales):
+        if s < 0.75 * finest:
+            continue
         H, W = f.depth.shape
         centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
         z = centre[centre > 0]
@@ -85,13 +91,29 @@ def pixel_footprint(frames: list[DepthFrame]) -> float:
     return float(np.median(per_view))
 
 
+DEPTH_SCALE = "depth_scale"  # View.extra of a depth frame's view: its depth map's width / its photo's
+# a frame whose depth map has a coarser resolution relative to its photo than the finest frames' weighs
+# (its scale / the finest) ** RESOLUTION_WEIGHT_POWER in TSDF fusion: its depths are that much less precise
+RESOLUTION_WEIGHT_POWER = 2.0
+
+
+def resolution_weights(frames) -> list[float]:
+    """Per frame its fusion weight factor: 1 for the frames at the finest depth-map resolution relative to their
+    photos (``DEPTH_SCALE``), less for coarser ones (a view the depth stage left at half resolution, where finer
+    views see its surface: 0.25), so that where both see a surface the finer depths set it."""
+    scales = [f.view.extra.get(DEPTH_SCALE, 1.0) for f in frames]
+    finest = max(scales, default=1.0)
+    return [1.0 if s >= 0.75 * finest else (s / finest) ** RESOLUTION_WEIGHT_POWER for s in scales]
+
+
 def depth_view(view: View, shape: tuple[int, int]) -> View:
     """``view`` with its intrinsics scaled to a depth map of ``shape`` = (H, W) (a working resolution with
-    the camera's aspect ratio); ``view`` itself when the sizes agree."""
+    the camera's aspect ratio), and the scale in ``extra[DEPTH_SCALE]``; ``view`` itself when the sizes agree."""
     h, w = shape
     if (h, w) == (view.intrinsics.height, view.intrinsics.width):
         return view
-    return replace(view, intrinsics=view.intrinsics.scaled(w, h))
+    return replace(view, intrinsics=view.intrinsics.scaled(w, h),
+                   extra={**view.extra, DEPTH_SCALE: w / view.intrinsics.width})
 
 
 def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = False) -> np.ndarray | None:

@@ -38,7 +38,7 @@ from ..progress import bar
 from ..resources import release_memory
 from .budget import tsdf_voxel_size
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share
-from .frames import FrameStore, full_frame, nonempty
+from .frames import FrameStore, full_frame, nonempty, resolution_weights
 from .pieces import _chunk_size, _in_box, chunk_core, stitch_pieces
 
 log = logging.getLogger("photorecon")
@@ -153,7 +153,8 @@ def _tsdf_weighted_kernel(block_keys, buf_idx, R, t, fx, fy, cx, cy, voxel, trun
 
 
 def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc: float, depth_max: float,
-                        normal_sdf: float = 0.0, keep: np.ndarray | None = None, ones: bool = False) -> None:
+                        normal_sdf: float = 0.0, keep: np.ndarray | None = None, ones: bool = False,
+                        factor: float = 1.0) -> None:
     """TSDF integration with a per-pixel weight (the confidence map; weight 1 per pixel with a depth when
     ``ones``), on the grid's own voxel storage: Open3D's ``integrate`` gives every pixel weight 1. Same update
     rule: running weighted mean of the truncated SDF (and of the colour, 0..255, mid-grey where the frame has
@@ -182,7 +183,11 @@ def _integrate_weighted(vbg, block_coords, f: "DepthFrame", voxel: float, trunc:
         else:
             normals = np.ascontiguousarray(f.normal, np.float32)
     keep = np.zeros(0, np.uint8) if keep is None else np.ascontiguousarray(keep, np.uint8)
-    weights = np.zeros((1, 1), np.float32) if ones else np.ascontiguousarray(f.confidence, np.float32)
+    if factor != 1.0:  # a coarser frame (``frames.resolution_weights``)
+        base = (f.depth > 0).astype(np.float32) if ones else np.asarray(f.confidence, np.float32)
+        weights = np.ascontiguousarray(base * np.float32(factor))
+    else:
+        weights = np.zeros((1, 1), np.float32) if ones else np.ascontiguousarray(f.confidence, np.float32)
     _tsdf_weighted_kernel(np.ascontiguousarray(block_coords.numpy(), np.int32),
                           np.ascontiguousarray(buf.numpy().ravel(), np.int64), T[:3, :3].copy(), T[:3, 3].copy(),
                           float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(voxel),
@@ -353,17 +358,18 @@ def _frame_blocks(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max
 
 
 def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cfg: FusionConfig, voxel: float,
-                      depth_max: float, keep: np.ndarray | None = None, ones: bool = False) -> None:
-    """Integrate the frame ``f`` (from ``_frame_blocks``) into the blocks ``coords`` of ``vbg``; ``keep`` and
-    ``ones`` as ``_integrate_weighted``'s."""
+                      depth_max: float, keep: np.ndarray | None = None, ones: bool = False, factor: float = 1.0) -> None:
+    """Integrate the frame ``f`` (from ``_frame_blocks``) into the blocks ``coords`` of ``vbg``; ``keep``, ``ones``
+    and ``factor`` (the frame's weight factor, ``frames.resolution_weights``) as ``_integrate_weighted``'s."""
     import open3d as o3d
     import open3d.core as o3c
 
     if not len(coords):
         return
     c = o3c.Tensor(np.ascontiguousarray(coords, np.int32))
-    if weighted:
-        _integrate_weighted(vbg, c, f, voxel, cfg.trunc_voxels * voxel, depth_max, cfg.normal_sdf, keep, ones)
+    if weighted or factor != 1.0:
+        _integrate_weighted(vbg, c, f, voxel, cfg.trunc_voxels * voxel, depth_max, cfg.normal_sdf, keep,
+                            ones or not weighted, factor)
         return
     K = o3c.Tensor(f.view.intrinsics.K, o3c.float64)
     T = o3c.Tensor(np.ascontiguousarray(f.view.cam_from_world), o3c.float64)
@@ -446,6 +452,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         ids = unique_rows(np.floor_divide(allb, chunk))
         boxes = [(i * chunk, (i + 1) * chunk, None) for i in ids]
     pieces = []
+    factors = resolution_weights(frames)
     for lo, hi, count in bar(boxes, desc="tsdf fusion", unit="chunk") if chunk else boxes:
         if count is None:
             count = int(_in_box(allb, lo - 1, hi + 1).sum())
@@ -457,7 +464,8 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
                 if not len(coords):
                     continue
             # the frame as it is: the kernel reads its normals through ``keep`` and weighs by ``ones``
-            _integrate_blocks(vbg, full_frame(frames, i), coords, weighted, cfg, voxel, depth_max, keep, ones)
+            _integrate_blocks(vbg, full_frame(frames, i), coords, weighted, cfg, voxel, depth_max, keep, ones,
+                              factors[i])
         V, F, C = _extract(vbg, cfg)
         del vbg
         release_memory(collect=False)  # the grid is freed by reference counting

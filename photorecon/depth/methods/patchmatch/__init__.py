@@ -46,9 +46,12 @@ def adapt(cfg, plan: dict):
 
 
 def _jobs(ctx: work.MVSContext) -> dict:
-    from .solver import PMJob
+    """Per planned view its ``solver.PMJob``; a view whose depth map stops at a coarser level (``ctx.levels``) stops
+    at that level's last round."""
+    from .solver import PMJob, last_round
 
-    return {n: PMJob(wv, srcs, rng[0], rng[1], seeds) for n, (wv, srcs, rng, seeds) in ctx.plan.items()}
+    return {n: PMJob(wv, srcs, rng[0], rng[1], seeds, last_round(ctx.cfg, work.depth_level(ctx, n)))
+            for n, (wv, srcs, rng, seeds) in ctx.plan.items()}
 
 
 def _round_file(ctx: work.MVSContext, r: int, name: str, what: str):
@@ -56,16 +59,18 @@ def _round_file(ctx: work.MVSContext, r: int, name: str, what: str):
 
 
 def tasks(ctx: work.MVSContext) -> tuple[list[Task], dict[str, str]]:
-    """Per view its rounds: ``pm{r}:NAME`` after round r - 1 of the views it reads (``solver.round_dependencies``)."""
-    from .solver import pm_rounds, round_dependencies
+    """Per view its rounds: ``pm{r}:NAME`` after round r - 1 of the views it reads (``solver.round_dependencies``;
+    a view that stops at a coarser level: its last round, ``solver.read_round``)."""
+    from .solver import pm_rounds, read_round, round_dependencies
 
     jobs = _jobs(ctx)
     n_rounds = len(pm_rounds(ctx.cfg))
     out = []
     for r in range(n_rounds):
-        out += [Task(f"pm{r}:{n}", (NAME, n, r), tuple(f"pm{r - 1}:{d}" for d in round_dependencies(jobs[n], r, jobs, ctx.cfg)))
-                for n in ctx.plan]
-    return out, {n: f"pm{n_rounds - 1}:{n}" for n in ctx.plan}
+        out += [Task(f"pm{r}:{n}", (NAME, n, r),
+                     tuple(f"pm{read_round(jobs[d], r, ctx.cfg)}:{d}" for d in round_dependencies(jobs[n], r, jobs, ctx.cfg)))
+                for n in ctx.plan if r <= jobs[n].last_round]
+    return out, {n: f"pm{jobs[n].last_round}:{n}" for n in ctx.plan}
 
 
 def run_task(ctx: work.MVSContext, name: str, r: int = 0) -> dict:
@@ -75,11 +80,12 @@ def run_task(ctx: work.MVSContext, name: str, r: int = 0) -> dict:
 
     cfg = ctx.cfg
     t0, c0 = time.perf_counter(), time.process_time()  # CPU: all threads of this process (the kernels' too)
-    last = r == len(solver.pm_rounds(cfg)) - 1
+    jobs = _jobs(ctx)
+    last = r == jobs[name].last_round
+    read_later = r < len(solver.pm_rounds(cfg)) - 1  # other views' later rounds read this round's maps
     done = work.raw_path(ctx, name, "depth") if last else _round_file(ctx, r, name, "depth")
     if done.is_file():
         return {"seconds": 0.0, "reused": True}
-    jobs = _jobs(ctx)
 
     def load(n: str, rr: int, what: str) -> np.ndarray:
         return work.load(_round_file(ctx, rr, n, what))
@@ -88,14 +94,14 @@ def run_task(ctx: work.MVSContext, name: str, r: int = 0) -> dict:
                                                          solver.PatchMatchParams(cfg), load,
                                                          lambda n, lv: work.level_mask(ctx, n, lv))
     seconds = time.perf_counter() - t0
-    if last:
-        work.finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
-    else:
+    if read_later:  # (depth last: the file that says the round is done)
         work.save(_round_file(ctx, r, name, "normal"), normal)
         work.save(_round_file(ctx, r, name, "cost"), cost)
         if views is not None:
             work.save(_round_file(ctx, r, name, "views"), views)
-        work.save(done, depth)
+        work.save(_round_file(ctx, r, name, "depth"), depth)
+    if last:  # finish_depth zeroes rejected pixels in place: after the round's own maps are written
+        work.finish_depth(ctx, name, depth, np.clip(1.0 - cost, 0.0, 1.0).astype(np.float32), normal)
     return {"seconds": seconds, "cpu_seconds": time.process_time() - c0}
 
 

@@ -53,6 +53,7 @@ class PMJob:
     dmin: float
     dmax: float
     seeds: np.ndarray
+    last_round: int | None = None  # its last round (``last_round``; None: every round of ``pm_rounds``)
 
 
 def level_view(view: View, level: int) -> View:
@@ -301,6 +302,18 @@ def _rounds(cfg) -> tuple[list[tuple[int, bool, int]], int]:
     return rounds, index
 
 
+def last_round(cfg, level: int = 0) -> int:
+    """The last round of a view whose depth map stops at pyramid level ``level`` (0: the working resolution, every
+    round; 1: the last round at half of it, ...): the last of ``pm_rounds`` at a level of at least ``level``, and
+    at least the first round."""
+    rounds = pm_rounds(cfg)
+    return max([r for r, (lvl, _, _) in enumerate(rounds) if lvl >= level], default=0)
+
+
+def job_last_round(job: PMJob, cfg) -> int:
+    return len(pm_rounds(cfg)) - 1 if job.last_round is None else job.last_round
+
+
 def round_sources(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> list[str]:
     """The source views ``job`` matches in round ``r`` (all of them in the first, the best
     ``pm_fine_sources`` after), among the views being computed."""
@@ -309,12 +322,18 @@ def round_sources(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> list[st
 
 
 def round_dependencies(job: PMJob, r: int, by_name: dict[str, PMJob], cfg) -> list[str]:
-    """The views whose round ``r - 1`` round ``r`` of ``job`` reads: itself (its starting planes), and with the
-    geometric term its sources (their depth maps)."""
+    """The views whose round ``r - 1`` (or their last, when that comes earlier: ``read_round``) round ``r`` of
+    ``job`` reads: itself (its starting planes), and with the geometric term its sources (their depth maps)."""
     if r == 0:
         return []
     geometric = pm_rounds(cfg)[r][1]
     return [job.view.name] + (round_sources(job, r, by_name, cfg) if geometric else [])
+
+
+def read_round(source: PMJob, r: int, cfg) -> int:
+    """The round of ``source`` whose maps round ``r`` of another view reads: ``r - 1``, or the source's last round
+    when it stops earlier (a depth map at a coarser level)."""
+    return min(r - 1, job_last_round(source, cfg))
 
 
 def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable[[str, View], np.ndarray],
@@ -361,14 +380,16 @@ def pm_view_round(job: PMJob, r: int, by_name: dict[str, PMJob], image: Callable
         if cfg.planar_prior:
             prior = (init[0].copy(), np.array(init[1], np.float32), c_up)
         if geometric and src_names:
-            geo = ([load(s, r - 1, "depth") for s in src_names], [level_view(by_name[s].view, prev_lvl) for s in src_names])
+            read = [read_round(by_name[s], r, cfg) for s in src_names]
+            geo = ([load(s, rr, "depth") for s, rr in zip(src_names, read)],
+                   [level_view(by_name[s].view, rounds[rr][0]) for s, rr in zip(src_names, read)])
         if cfg.pm_prune_cost > 0:
             keep = pruned_active(d_prev, cost_prev, cfg.pm_prune_cost, ref)
             active = keep if active is None else active & keep
     depth, normal, cost = patchmatch_view(
         image(name, ref), ref, [image(s, v) for s, v in zip(src_names, srcs)], srcs, job.dmin, job.dmax,
         params.at_size(ref), iters, init=init, seeds=job.seeds if first else None, geo=geo, seed=cfg.pm_seed,
-        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == len(rounds) - 1,
+        init_cost=c_init, n_refine=6 if first else cfg.pm_fine_refine, prior=prior, prior_after=r == job_last_round(job, cfg),
         skip_consistent=cfg.pm_skip_consistent if r == final_round else 0,
         active=active, select_current=not first and cfg.pm_fine_views == "current", views=views, views_read=not first)
     return depth, normal, cost, ref, views
