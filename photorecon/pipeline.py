@@ -344,7 +344,11 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                             "cpu_seconds_per_view": round(rep["cpu_seconds_per_view"], 2),
                             "cpu_seconds_per_mp_source": round(rep["cpu_seconds_per_mp_source"], 3),
                             "triangulation_seconds": rep["triangulation_seconds"],
-                            "confirmed_fraction": confirmed_fraction(rep["per_view"], n_depth)}
+                            "confirmed_fraction": confirmed_fraction(rep["per_view"], n_depth),
+                            # per view its depth map's size, resolution and why (--depth-resolution)
+                            "resolution": {n: "{} {}x{}{}".format(s["resolution"], *s["size"],
+                                                                   f" ({s['resolution_reason']})" if "resolution_reason" in s else "")
+                                           for n, s in rep["per_view"].items()}}
                     check_enough_depth(info["confirmed_fraction"], rep["per_view"], n_depth, run, cfgs.mvs)
                     written = sorted(rep["per_view"])
             _check_depth_written(layout, info["views"], written)

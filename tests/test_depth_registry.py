@@ -101,6 +101,8 @@ def test_a_toy_method_runs_through_the_pipeline(truth, scene, tmp_path):
     res = reconstruct(scene / "images", tmp_path / "out", cfgs)
     assert res.depth["source"] == "mvs" and res.parameters["mvs"]["method"] == "truth"
     assert res.depth["views"] == 8 and res.depth["confirmed_fraction"] > 0.2 and res.mesh["faces"] > 100
+    # report.json: each depth map's resolution and size (8 views: no coarse cover, every one full)
+    assert len(res.depth["resolution"]) == 8 and all(r.startswith("full ") for r in res.depth["resolution"].values())
     v = "view_000"
     d, gt = np.load(tmp_path / "out" / "depth" / f"{v}.npy"), np.load(scene / "depth" / f"{v}.npy")
     assert np.array_equal(d[d > 0], gt[d > 0])

@@ -380,14 +380,14 @@ def _integrate_blocks(vbg, f: DepthFrame, coords: np.ndarray, weighted: bool, cf
 
 
 def _integrate_frame(vbg, f: DepthFrame, cfg: FusionConfig, voxel: float, depth_max: float,
-                     blocks: tuple[np.ndarray, np.ndarray] | None = None) -> int:
+                     blocks: tuple[np.ndarray, np.ndarray] | None = None, factor: float = 1.0) -> int:
     """Integrate one frame into ``vbg`` (confidence-weighted when it has a confidence map); only the blocks it
     touches, and with ``blocks`` = (lo, hi) block coordinates only those with lo <= key < hi (a chunk).
     Returns the number of blocks integrated."""
     f, coords, weighted = _frame_blocks(vbg, f, cfg, voxel, depth_max)
     if blocks is not None:
         coords = coords[_in_box(coords, blocks[0], blocks[1])]
-    _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max)
+    _integrate_blocks(vbg, f, coords, weighted, cfg, voxel, depth_max, factor=factor)
     return int(len(coords))
 
 
