@@ -271,7 +271,7 @@ def test_half_resolution_depth_maps_fuse_as_well_as_full_ones(tmp_path):
     0.849)."""
     from photorecon.depth.mvs import run_mvs
     from photorecon.fusion import FusionConfig, fuse, load_frames
-    from photorecon.fusion.frames import pixel_footprint
+    from photorecon.fusion.frames import DEPTH_LEVEL, pixel_footprint
     from photorecon.io.dataset import Dataset
     from photorecon.metrics import mesh_metrics
     from photorecon.synthetic import synthesize
@@ -294,6 +294,7 @@ def test_half_resolution_depth_maps_fuse_as_well_as_full_ones(tmp_path):
             assert not half
         dsd = Dataset.open(data, depth_dir=tmp_path / mode)
         frames = load_frames(dsd, FusionConfig(), [v for v in dsd.views if dsd.has_depth(v)])
+        assert sorted(f.view.name for f in frames if f.view.extra.get(DEPTH_LEVEL)) == sorted(half)
         footprints[mode] = pixel_footprint(frames)
         m = mesh_metrics(fuse(frames, FusionConfig(), dsd.model.points), gt, n_samples=30_000)
         scores[mode] = (m.fscore, m.fscore_half)

@@ -821,9 +821,9 @@ def test_streamed_frames_are_prepared_once_and_fuse_in_chunks_to_the_one_grid_me
     prepared = Counter()
     load_frame = frames_mod.load_frame
 
-    def counting(dataset, v, cfg, full=True):
+    def counting(dataset, v, cfg, full=True, level=0):
         prepared[v.name] += 1
-        return load_frame(dataset, v, cfg, full)
+        return load_frame(dataset, v, cfg, full, level)
 
     monkeypatch.setattr(frames_mod, "load_frame", counting)
     cfg = FusionConfig(grid_budget_gb=0.03)
@@ -917,8 +917,8 @@ def test_planar_normals_kernel_matches_numpy_reference():
 
 
 def test_coarser_depth_maps_weigh_less_and_leave_the_voxel(frames, gt, monkeypatch):
-    """Depth maps at half the resolution of the others relative to their photos (a depth stage's half-resolution
-    views) weigh a quarter in TSDF fusion and do not coarsen the voxel: with every other view's depth at half
+    """Depth maps a depth stage left at half their working resolution (``DEPTH_LEVEL`` 1) weigh a quarter in TSDF
+    fusion and do not coarsen the voxel: with every other view's depth at half
     resolution and 3 voxels too far, the fused surface stays nearer the truth than with equal weights (mean
     distance 0.0035 against 0.0144 measured, voxel 0.009)."""
     import cv2
@@ -934,13 +934,13 @@ def test_coarser_depth_maps_weigh_less_and_leave_the_voxel(frames, gt, monkeypat
             h, w = f.depth.shape[0] // 2, f.depth.shape[1] // 2
             d = cv2.resize(f.depth, (w, h), interpolation=cv2.INTER_NEAREST)
             d = np.where(d > 0, d + 3 * voxel, 0).astype(np.float32)
-            f = DepthFrame(fr.depth_view(f.view, (h, w)), d, cv2.resize(f.color, (w, h)),
+            view = fr.depth_view(f.view, (h, w))
+            f = DepthFrame(replace(view, extra={**view.extra, fr.DEPTH_LEVEL: 1}), d, cv2.resize(f.color, (w, h)),
                            None if f.confidence is None else cv2.resize(f.confidence, (w, h)))
         mixed.append(f)
     assert fr.resolution_weights(mixed) == [0.25 if i % 2 else 1.0 for i in range(len(mixed))]
     assert pixel_footprint(mixed) == pytest.approx(pixel_footprint(frames), rel=0.02)
     weighted = mesh_metrics(fuse(mixed, FusionConfig()), gt, n_samples=20_000)
-    monkeypatch.setattr(fr, "RESOLUTION_WEIGHT_POWER", 0.0)
-    assert fr.resolution_weights(mixed) == [1.0] * len(mixed)
+    monkeypatch.setattr("photorecon.fusion.tsdf.resolution_weights", lambda frames: [1.0] * len(frames))
     equal = mesh_metrics(fuse(mixed, FusionConfig()), gt, n_samples=20_000)
     assert weighted.accuracy_mean < 0.5 * equal.accuracy_mean, (weighted.accuracy_mean, equal.accuracy_mean)

@@ -14,7 +14,7 @@ from ..arrays import key_rows, row_keys, unique_rows, unique_sorted
 from ..cameras import View
 from ..errors import NoDepthError
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL
-from .frames import load_frame, nonempty, resolution_weights
+from .frames import depth_levels, load_frame, nonempty, resolution_weights
 from .budget import _band_block_keys, tsdf_voxel_size
 from .pieces import chunk_core, stitch_pieces
 from .tsdf import _depth_max, _extract, _integrate_frame, _new_grid
@@ -37,6 +37,7 @@ class _ChunkContext:
     chunk_blocks: int
     work: object
     factors: list[float] | None = None  # per frame (as ``cams``) its weight factor (``frames.resolution_weights``)
+    levels: dict | None = None  # view name -> its depth map's level below the working resolution (``depth_levels``)
 
 
 def _sample_blocks(frames: list[DepthFrame], voxel: float, trunc: float) -> np.ndarray:
@@ -109,7 +110,7 @@ def _chunk_piece(ctx: _ChunkContext, index: tuple[int, int, int], est_blocks: in
     for (view, dmin, dmax), factor in zip(ctx.cams, ctx.factors or [1.0] * len(ctx.cams)):
         if not _box_visible(view, (lo - 1) * block, (hi + 1) * block, dmin - margin, dmax + margin):
             continue
-        f = load_frame(ctx.dataset, view, cfg)
+        f = load_frame(ctx.dataset, view, cfg, level=ctx.levels.get(view.name, 0) if ctx.levels else 0)
         if f is not None and _integrate_frame(vbg, f, cfg, voxel, ctx.depth_max, (lo - 1, hi + 1), factor):
             used += 1
     V, F, C = _extract(vbg, cfg) if used else (np.zeros((0, 3)), np.zeros((0, 3), np.int64), None)
@@ -160,7 +161,8 @@ def tsdf_fuse_chunked(dataset, frames: list[DepthFrame], cfg: FusionConfig, spar
     key = hashlib.sha256(json.dumps([str(cfg), voxel, depth_max, chunk_blocks, [stat(v) for v, _, _ in cams]],
                                     default=str).encode()).hexdigest()[:16]
     root = Path(work_dir) if work_dir else Path(dataset.depth_dir).parent / ".fusion_work"
-    ctx = _ChunkContext(dataset, cfg, cams, voxel, depth_max, chunk_blocks, root / key, resolution_weights(frames))
+    ctx = _ChunkContext(dataset, cfg, cams, voxel, depth_max, chunk_blocks, root / key, resolution_weights(frames),
+                        depth_levels(dataset))
     log.debug("tsdf: voxel %.5g, %d chunks of %d^3 blocks", voxel, len(chunks), chunk_blocks)
     del frames
     info = ex.run(_chunk_task, [Task("{}_{}_{}".format(*i), (i, n)) for i, n in chunks], ctx, desc="tsdf chunks",

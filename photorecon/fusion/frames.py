@@ -68,16 +68,12 @@ def scene_diagonal(frames: list[DepthFrame], sparse_points: np.ndarray | None = 
 def pixel_footprint(frames: list[DepthFrame]) -> float:
     """The depth maps' pixel footprint on the surfaces the cameras look at, in scene units: per view the
     median ``z / f`` of the valid pixels of its central window (half the width and height; the whole map when
-    that window has under 5% valid pixels), with ``f`` of the depth map's own intrinsics; the median over
-    the views whose depth maps have the finest resolution relative to their photo (``DEPTH_SCALE``: the views a
-    depth stage left at half resolution, where others see their surface as finely, do not coarsen it). Far
-    background at the image borders and outlying sparse points do not move it."""
-    scales = [f.view.extra.get(DEPTH_SCALE, 1.0) for f in frames]
-    finest = max(scales, default=1.0)
+    that window has under 5% valid pixels), with ``f`` of the depth map's own intrinsics, as it would be at its
+    view's working resolution (``DEPTH_LEVEL``: a depth map the depth stage left at half resolution counts with
+    half its own footprint, and does not coarsen the voxel); the median over views.
+    Far background at the image borders and outlying sparse points do not move it."""
     per_view = []
-    for f, s in zip(frames, scales):
-        if s < 0.75 * finest:
-            continue
+    for f in frames:
         H, W = f.depth.shape
         centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
         z = centre[centre > 0]
@@ -85,35 +81,44 @@ def pixel_footprint(frames: list[DepthFrame]) -> float:
             z = f.depth[f.depth > 0]
         if z.size:
             intr = f.view.intrinsics
-            per_view.append(float(np.median(z)) / (0.5 * (intr.fx + intr.fy)))
+            per_view.append(float(np.median(z)) / (0.5 * (intr.fx + intr.fy)) / 2 ** f.view.extra.get(DEPTH_LEVEL, 0))
     if not per_view:
         raise NoDepthError("no valid depth in any view: nothing to fuse")
     return float(np.median(per_view))
 
 
-DEPTH_SCALE = "depth_scale"  # View.extra of a depth frame's view: its depth map's width / its photo's
-# a frame whose depth map has a coarser resolution relative to its photo than the finest frames' weighs
-# (its scale / the finest) ** RESOLUTION_WEIGHT_POWER in TSDF fusion: its depths are that much less precise
-RESOLUTION_WEIGHT_POWER = 2.0
+DEPTH_LEVEL = "depth_level"  # View.extra of a depth frame's view: the pyramid level of its depth map below its view's
+# working resolution (the depth stage's ``mvs_report.json``, ``per_view[NAME]["resolution"]``: 1 = half), absent = 0
 
 
 def resolution_weights(frames) -> list[float]:
-    """Per frame its fusion weight factor: 1 for the frames at the finest depth-map resolution relative to their
-    photos (``DEPTH_SCALE``), less for coarser ones (a view the depth stage left at half resolution, where finer
-    views see its surface: 0.25), so that where both see a surface the finer depths set it."""
-    scales = [f.view.extra.get(DEPTH_SCALE, 1.0) for f in frames]
-    finest = max(scales, default=1.0)
-    return [1.0 if s >= 0.75 * finest else (s / finest) ** RESOLUTION_WEIGHT_POWER for s in scales]
+    """Per frame its fusion weight factor: 1 for a depth map at its view's working resolution, 4 ** -level for one
+    at a coarser pyramid level (``DEPTH_LEVEL``: a view the depth stage left at half resolution, where finer views
+    see its surface, weighs 0.25: its depth noise grows with its footprint), so that where both see a surface the
+    finer depths set it."""
+    return [0.25 ** f.view.extra.get(DEPTH_LEVEL, 0) for f in frames]
+
+
+def depth_levels(dataset) -> dict[str, int]:
+    """Per view of ``dataset`` whose depth map the depth stage left at a coarser level than its working resolution:
+    that level (from ``mvs_report.json`` in the depth folder; {} without one)."""
+    import json
+
+    path = Path(dataset.depth_dir) / "mvs_report.json" if getattr(dataset, "depth_dir", None) else None
+    try:
+        per_view = json.loads(path.read_text()).get("per_view", {}) if path is not None and path.is_file() else {}
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return {n: 1 for n, s in per_view.items() if isinstance(s, dict) and s.get("resolution") == "half"}
 
 
 def depth_view(view: View, shape: tuple[int, int]) -> View:
     """``view`` with its intrinsics scaled to a depth map of ``shape`` = (H, W) (a working resolution with
-    the camera's aspect ratio), and the scale in ``extra[DEPTH_SCALE]``; ``view`` itself when the sizes agree."""
+    the camera's aspect ratio); ``view`` itself when the sizes agree."""
     h, w = shape
     if (h, w) == (view.intrinsics.height, view.intrinsics.width):
         return view
-    return replace(view, intrinsics=view.intrinsics.scaled(w, h),
-                   extra={**view.extra, DEPTH_SCALE: w / view.intrinsics.width})
+    return replace(view, intrinsics=view.intrinsics.scaled(w, h))
 
 
 def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = False) -> np.ndarray | None:
@@ -127,11 +132,14 @@ def _resize_to(img: np.ndarray | None, shape: tuple[int, int], nearest: bool = F
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
 
 
-def load_frame(dataset, v: View, cfg: FusionConfig, full: bool = True) -> DepthFrame | None:
+def load_frame(dataset, v: View, cfg: FusionConfig, full: bool = True, level: int = 0) -> DepthFrame | None:
     """One view's depth frame (see ``load_frames``); None when no pixel is left valid. ``full=False``: the
-    filtered depth map alone (no colour, confidence or normals)."""
+    filtered depth map alone (no colour, confidence or normals). ``level``: its depth map's pyramid level below
+    its working resolution (``depth_levels``), kept in its view's ``extra[DEPTH_LEVEL]``."""
     raw = dataset.depth(v)
     dv = depth_view(v, raw.shape)
+    if level:
+        dv = replace(dv, extra={**dv.extra, DEPTH_LEVEL: level})
     conf = dataset.confidence(v)
     if conf is not None and conf.shape != raw.shape:
         raise InputDataError(f"view {v.name}: confidence map has shape {conf.shape}, its depth map {raw.shape}; "
@@ -249,12 +257,13 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None,
     kept on disk, and read from there when used (TSDF fusion streams them), so the memory they take does not
     grow with the view count."""
     frames, missing, store = [], [], None
+    levels = depth_levels(dataset)  # depth maps the depth stage left at half resolution
     held, originals = 0, []  # the dataset's views of ``frames`` (a frame's view is scaled to its depth map)
     for v in views or dataset.views:
         if not dataset.has_depth(v):
             missing.append(v.name)
             continue
-        f = load_frame(dataset, v, cfg)
+        f = load_frame(dataset, v, cfg, level=levels.get(v.name, 0))
         if f is None:
             log.warning("view %s: depth map has no valid pixel; skipped", v.name)
             continue
