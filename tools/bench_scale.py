@@ -13,7 +13,8 @@ Sets (``--only`` picks some, comma-separated):
 
 Each set runs ``photorecon sfm`` (or ``photorecon reconstruct`` with ``--e2e``) as a child process with the
 defaults plus ``--args`` (e.g. ``--args="--matching exhaustive"``), output under ``--work``. ``--poses
-reference`` gives ``photorecon reconstruct`` the set's reference cameras (``--poses``: no SfM; implies ``--e2e``).
+reference`` gives ``photorecon reconstruct`` the set's reference cameras (``--poses``: no SfM; implies ``--e2e``);
+``--poses FOLDER`` gives it those of a COLMAP model (with sparse points: the depth stage then triangulates nothing).
 
 ``--baseline COMMIT_OR_PATH`` then runs the same command with another version's code on the same set (output
 under ``--work``/baseline) and prints per stage both CPU seconds and current/baseline, the end-to-end wall and
@@ -324,8 +325,9 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("/tmp/photorecon-bench-scale/data"), help="synthetic sets, made once")
     ap.add_argument("--work", type=Path, default=Path("/tmp/photorecon-bench-scale/out"), help="outputs")
     ap.add_argument("--json", type=Path, help="also write the results here: {ncc_ns, rows, comparisons}")
-    ap.add_argument("--poses", choices=["reference"], help="reference: photorecon reconstruct --poses with the set's "
-                    "reference cameras instead of SfM (implies --e2e)")
+    ap.add_argument("--poses", metavar="reference|FOLDER", help="reference: photorecon reconstruct --poses with the "
+                    "set's reference cameras instead of SfM; FOLDER: those cameras (a COLMAP model, e.g. the reference "
+                    "cameras with their triangulated points, so that neither side triangulates); implies --e2e")
     ap.add_argument("--baseline", metavar="COMMIT_OR_PATH", help="also run each set with this version's code (a "
                     "commit, or a worktree with .venv/bin/photorecon) and compare")
     a = ap.parse_args()
@@ -346,10 +348,10 @@ def main() -> None:
                 print(f"gold_cape: {GOLD_CAPE} not found, skipped")
                 continue
             photos, ref = gold_cape_set()
-            poses = GOLD_CAPE / "reference" if a.poses else None
+            poses = (GOLD_CAPE / "reference" if a.poses == "reference" else Path(a.poses)) if a.poses else None
         elif name.startswith("unordered") and name[9:].isdigit():
             photos, ref = unordered_set(int(name[9:]), a.size, a.data)
-            poses = unordered_reference(photos) if a.poses else None
+            poses = (unordered_reference(photos) if a.poses == "reference" else Path(a.poses)) if a.poses else None
         else:
             raise SystemExit(f"--only: unknown set {name!r} (gold_cape or unorderedN)")
         rows.append(run_set(name, photos, ref, a.work / name, args, a.e2e, poses=poses))
