@@ -402,3 +402,19 @@ def test_no_depth_on_a_textureless_background(knot_small, tmp_path):
     # measured: 13% of the kept depths lie on the background (the silhouettes' fattened edges); 40% with
     # --min-texture 0
     assert background / kept < 0.2, background / kept
+
+
+def test_a_half_resolution_view_stops_after_its_last_half_resolution_round():
+    """A view whose depth map stops at pyramid level 1 (``--depth-resolution``) runs the rounds down to the last one
+    at half resolution; another view's later round reads that last round of it (``read_round``), its own rounds
+    the round before."""
+    from photorecon.depth.methods.patchmatch.solver import PMJob, last_round, read_round
+
+    cfg = MVSConfig()  # rounds at levels 2, 1, 0, 0
+    assert [last_round(cfg, lvl) for lvl in (0, 1, 2)] == [3, 1, 0]
+    assert last_round(MVSConfig(pm_final_level=1), 1) == 2  # the extra geometric round at half resolution too
+    assert last_round(MVSConfig(pm_levels=1), 1) == 0  # no half level: the first round at least
+    half = PMJob(None, [], 1.0, 2.0, np.zeros((0, 3)), last_round(cfg, 1))
+    full = PMJob(None, [], 1.0, 2.0, np.zeros((0, 3)))
+    assert [read_round(half, r, cfg) for r in (1, 2, 3)] == [0, 1, 1]
+    assert [read_round(full, r, cfg) for r in (1, 2, 3)] == [0, 1, 2]
