@@ -136,7 +136,8 @@ def test_report_html_says_what_object_removed(tmp_path):
     mesh = {"faces": 10, "support_normal": "0.00000,0.00000,1.00000", "support_offset": -0.4, "support_cut": 0.045,
             "support_removed_faces": 1234, "support_removed_area": 2.5}
     page = write_html_report(tmp_path, {"mesh": mesh}).read_text()
-    assert "support plane removed" in page and "1234 faces, area 2.5" in page
+    assert "support plane removed" in page and "1,234 faces, area 2.5 units²" in page
+    assert "c = -0.4 units, cut 0.045 units" in page
     assert "support plane removed" not in write_html_report(tmp_path, {"mesh": {"faces": 10}}).read_text()
 
 

@@ -364,53 +364,25 @@ def _viewer_section(out: Path) -> str:
 def write_html_report(out: Path, report: dict, extra_rows: dict | None = None) -> Path:
     """A self-contained OUT/report.html: an interactive 3D view of OUT's mesh and cameras, the preview, the
     numbers, depth maps, warnings, parameters. Images and mesh are embedded; it opens with no server."""
+    from .page import REPORT_CSS, fact_rows, preview_html, sections_html, stage_rows, summary_facts
+
     out = Path(out)
-    rows = []
-    for stage, s in report.get("stages", {}).items():
-        rows.append(f"<tr><td>{html.escape(stage)}</td><td>{s.get('seconds', 0):.2f}</td>"
-                    f"<td>{s.get('cpu_seconds', '')}</td><td>{s.get('peak_mb', '')}</td><td>{'cached' if s.get('cached') else ''}</td></tr>")
-    facts = {"registered images": report.get("poses", {}).get("registered"),
-             "unregistered": ", ".join(report.get("poses", {}).get("unregistered", [])) or "none",
-             "depth maps": report.get("depth", {}).get("views"), "depth source": report.get("depth", {}).get("source"),
-             "mesh vertices": report.get("mesh", {}).get("vertices"), "mesh faces": report.get("mesh", {}).get("faces"),
-             "watertight": report.get("mesh", {}).get("watertight"),
-             "boundary edges": report.get("mesh", {}).get("boundary_edges"),
-             "open boundary length": report.get("mesh", {}).get("boundary_length"),
-             "area of filled holes": report.get("mesh", {}).get("filled_area"),
-             "closed companion": "none" if not isinstance(report.get("mesh", {}).get("closed"), dict) else
-                 (f"{report['mesh']['closed'].get('file')}: "
-                  f"{'watertight' if report['mesh']['closed'].get('watertight') else 'not watertight'}, "
-                  f"filled area {report['mesh']['closed'].get('filled_area', 0):.4g}"),
-             "invented area (farther than invent_distance from every observed point)":
-                 None if report.get("mesh", {}).get("invented_fraction") is None
-                 else f"{100 * report['mesh']['invented_fraction']:.1f}%"}
-    scene = report.get("mesh", {}).get("scene")
-    if isinstance(scene, dict):  # --scene: what was detected (or given) and why
-        how = "detected" if scene.get("mode") == "auto" else "given"
-        facts["scene (--scene auto|object|open)"] = (f"{scene.get('detected')} ({how}): {scene.get('reason')}; "
-                                                    + ("support removed" if scene.get("support_removed")
-                                                       else "nothing removed, the ground kept"))
-    if "support_removed_faces" in report.get("mesh", {}):  # an object capture: its support removed
-        m = report["mesh"]
-        facts["support plane removed (n . X = c, and everything below the cut above it)"] = (
-            f"n = ({m['support_normal']}), c = {m['support_offset']:.6g}, cut {m['support_cut']:.4g}: "
-            f"{m['support_removed_faces']} faces, area {m['support_removed_area']:.4g}")
-    facts.update(extra_rows or {})
-    fact_rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in facts.items())
+    facts = {**summary_facts(report), **(extra_rows or {})}
     depth_imgs = "".join(_img_tag(p, 240) for p in sorted((out / "depth").glob("*.png"))[:24]) if (out / "depth").is_dir() else ""
     warn = "".join(f"<li>{html.escape(w)}</li>" for w in report.get("warnings", [])) or "<li>none</li>"
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>photorecon report</title>
 <meta name="viewport" content="width=device-width">
-<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px}}img{{margin:2px}}
+<style>{REPORT_CSS}
 {VIEWER_CSS}</style>
 </head><body><h1>photorecon report</h1>
 <p>photorecon {html.escape(str(report.get('photorecon')))} &middot; input {html.escape(str(report.get('input')))}</p>
 <h2>3D view</h2>{_viewer_section(out)}
-<h2>Mesh</h2>{_img_tag(out / 'preview.png')}
-<h2>Summary</h2><table>{fact_rows}</table>
-<h2>Stages</h2><table><tr><th>stage</th><th>seconds</th><th>CPU seconds</th><th>peak MB</th><th></th></tr>{''.join(rows)}</table>
-<h2>Depth maps</h2><div>{depth_imgs}</div>
+<h2>Mesh</h2>{preview_html(out / 'preview.png')}
+<h2>Summary</h2><table>{fact_rows(facts, report.get('units', 'arbitrary'))}</table>
+<h2>Stages</h2><table>{stage_rows(report)}</table>
+<h2>Depth maps</h2><div class="tiles depth">{depth_imgs}</div>
 <h2>Warnings</h2><ul>{warn}</ul>
+<h2>Facts by stage</h2>{sections_html(report)}
 <h2>Parameters</h2><pre>{html.escape(json.dumps(report.get('parameters', {}), indent=1))}</pre>
 </body></html>"""
     return atomic_write_text(out / "report.html", page)
