@@ -153,13 +153,13 @@ def _log_choice(choice, cfg: MVSConfig) -> list[str]:
 def _coarse_choice(ctx: MVSContext, ex) -> tuple[dict, ViewChoice]:
     """``--depth-views coarse``: the method's coarse depth map of every planned view (``coarse_maps``), then the
     views whose full depth maps cover that surface (``views.coarse_depth_views``). Returns the coarse tasks'
-    results and the choice."""
+    results, the choice and the coarse maps."""
     results, maps = method(ctx.cfg.method).coarse_maps(ctx, ex)
-    return results, coarse_depth_views([ctx.plan[n][0] for n in ctx.plan], maps, ctx.cfg)
+    return results, coarse_depth_views([ctx.plan[n][0] for n in ctx.plan], maps, ctx.cfg), maps
 
 
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
-            work_dir: str | Path | None = None) -> MVSResult:
+            work_dir: str | Path | None = None, on_coarse=None) -> MVSResult:
     """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
     with the same aspect ratio when the images exceed ``max_size``), confidences, normals and previews
     to ``out_dir`` (default: DATASET/depth). Returns a report dict. Raises ``NoDepthError`` if no view
@@ -168,7 +168,11 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     The work is a task graph (``mvs_tasks``) run by ``executor`` (default: in this process, one task after the
     other; ``photorecon.distributed`` runs it on a Dask cluster). Intermediate maps go to ``work_dir`` (default
     OUT_DIR/.mvs_work), in a sub-folder named after a hash of the settings and inputs: an interrupted run's
-    finished tasks are reused by the next run with the same settings; the sub-folder is removed on success."""
+    finished tasks are reused by the next run with the same settings; the sub-folder is removed on success.
+
+    ``on_coarse(maps)``: called once the coarse depth maps of every view exist (on a capture that gets them,
+    see ``views.wants_coarse_cover``), with ``{name: (view at the map's resolution, depth, normal, cost)}``,
+    before the chosen views' full depth maps are computed (the pipeline makes a first look of them)."""
     import shutil
 
     cfg = expect_config(cfg, MVSConfig, "cfg")
@@ -203,7 +207,10 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
                       _filter_plan(model, views, cfg))
     coarse_results: dict = {}
     if coarse:
-        coarse_results, coarse_choice = _coarse_choice(ctx, ex)
+        coarse_results, coarse_choice, maps = _coarse_choice(ctx, ex)
+        if on_coarse is not None:
+            on_coarse(maps)
+        del maps
         choice = coarse_choice if choice is None else coarse_choice.after(choice)
         model = _restricted(model, _log_choice(choice, cfg))
         views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
