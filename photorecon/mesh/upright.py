@@ -109,8 +109,10 @@ def upright_frame(mesh: trimesh.Trimesh, views: list[View] | None, scene: str = 
     detected = (meta.get("scene") or {}).get("detected") if isinstance(meta.get("scene"), dict) else None
     want_object = scene == "object" or (scene == "auto" and detected != "open")
     if want_object:
-        plane, reason = _metadata_plane(meta), "the support plane the cleaning removed (mesh metadata)"
-        if plane is None and len(F) and finite.all():
+        plane = _metadata_plane(meta)
+        if plane is not None:
+            reason = "the support plane the cleaning removed (mesh metadata)"
+        elif len(F) and finite.all():
             plane, reason, keep = _find_plane(V, F, views, voxel, seed, check=scene == "auto" and detected is None)
     if plane is not None:
         n, c = plane
