@@ -48,6 +48,7 @@ def _run_demo(out: Path, cfg: DemoConfig) -> dict:
     from .metrics import evaluate_reconstruction
     from .pipeline import StageConfigs, reconstruct
     from .report import write_html_report
+    from .report.numbers import format_number, format_percent
     from .synthetic import SynthConfig, synthesize
 
     t0 = time.perf_counter()
@@ -72,21 +73,23 @@ def _run_demo(out: Path, cfg: DemoConfig) -> dict:
                "seconds": {"synthesize": t_synth, **{k: v.get("seconds", 0) for k, v in report["stages"].items()},
                            "total": total}}
     atomic_write_json(out / "demo.json", summary)
-    write_html_report(rec, report.to_dict(), {"F-score at 1% (vs truth)": f"{m.fscore:.4f}",
-                                    "Chamfer (% of diagonal)": f"{100 * m.chamfer / m.diagonal:.4f}",
-                                    "rotation error (deg, mean)": f"{poses['rot_mean_deg']:.4f}"})
+    write_html_report(rec, report.to_dict(), {"F-score at 1% (vs truth)": format_number(m.fscore),
+                                              "Chamfer (vs truth)": f"{format_percent(m.chamfer / m.diagonal)} of "
+                                                                    "the diagonal",
+                                              "rotation error (mean, vs truth)": f"{format_number(poses['rot_mean_deg'])}°"})
     return summary
 
 
 def print_summary(s: dict, out: Path) -> None:
+    from .report.numbers import format_number, format_seconds
+
     print(f"photorecon demo: '{s['scene']}' scene, {s['views']} views at {s['size']}, reconstructed from its images alone")
     print(f"  {'registered images':32} {s['registered']} / {s['views']}")
-    print(f"  {'rotation error (mean)':32} {s['rotation_error_mean_deg']:.4f} deg")
-    print(f"  {'camera centre error (mean)':32} {s['center_error_mean_pct_spread']:.4f} % of camera spread")
-    print(f"  {'mesh F-score at 1% / 0.5%':32} {s['fscore_1pct']:.4f} / {s['fscore_0.5pct']:.4f}")
-    print(f"  {'mesh Chamfer':32} {s['chamfer_pct_diag']:.4f} % of the diagonal")
-    secs = s["seconds"]
-    print("  seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in secs.items()))
+    print(f"  {'rotation error (mean)':32} {format_number(s['rotation_error_mean_deg'])}°")
+    print(f"  {'camera centre error (mean)':32} {format_number(s['center_error_mean_pct_spread'])}% of camera spread")
+    print(f"  {'mesh F-score at 1% / 0.5%':32} {format_number(s['fscore_1pct'])} / {format_number(s['fscore_0.5pct'])}")
+    print(f"  {'mesh Chamfer':32} {format_number(s['chamfer_pct_diag'])}% of the diagonal")
+    print("  time: " + ", ".join(f"{k} {format_seconds(v)}" for k, v in s["seconds"].items()))
     print(f"  files: {out}/reconstruction/mesh.ply, preview.png, report.html")
 
 
@@ -195,5 +198,7 @@ def print_bunny_summary(s: dict, out: Path) -> None:
     print("  seen / unseen: F@1% on the parts of both surfaces within two cells of an observed point / the rest "
           "(what no camera saw); doubled: fraction of the surface with a second sheet of the same mesh within 0.5% "
           "of the diagonal; invented: area farther than two cells from every observed point")
-    print(f"  seconds: synthesize {s['seconds']['synthesize']:.1f}, total {s['seconds']['total']:.1f}")
+    from .report.numbers import format_seconds
+
+    print(f"  time: synthesize {format_seconds(s['seconds']['synthesize'])}, total {format_seconds(s['seconds']['total'])}")
     print(f"  files: {out}/side_by_side.png, tsdf.ply, watertight.ply, demo.json")
