@@ -200,7 +200,8 @@ def format_value(key: str, value, units: str | None = "arbitrary", max_items: in
     """``value`` (a fact of report.json named ``key``) for reading: numbers by their key's kind (``kind_of``,
     else ``kind``, the kind of the section holding it, e.g. the stages of ``sfm_seconds``; none: an int as a
     count, a float to 3 significant digits), ``A_per_B`` as A "per B", booleans "yes"/"no", None "n/a", lists
-    and dicts item by item (at most ``max_items``, then how many more)."""
+    and dicts item by item (at most ``max_items``, then how many more), text as it is unless it is a
+    comma-separated list of numbers ("0,0.70710678,0.70710678" -> "(0, 0.707, 0.707)")."""
     key = str(key)
     kind = kind_of(key) or kind
     if value is None:
@@ -208,7 +209,8 @@ def format_value(key: str, value, units: str | None = "arbitrary", max_items: in
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, str):
-        return value
+        numbers = _numbers_in(value)
+        return value if numbers is None else format_value(key, numbers, units, max_items, kind)
     if isinstance(value, dict):
         items = list(value.items())
         text = "; ".join(f"{label(k)}: {format_value(k, v, units, max_items, kind)}" for k, v in items[:max_items])
@@ -230,6 +232,18 @@ def format_value(key: str, value, units: str | None = "arbitrary", max_items: in
     if isinstance(value, Integral):
         return format_count(value)
     return significant(value)
+
+
+def _numbers_in(text: str) -> list[float] | None:
+    """The numbers of a comma-separated list of decimals written as text (report.json's
+    "0.00000,0.70711,0.70711" of a direction), else None."""
+    parts = text.split(",")
+    if len(parts) < 2 or not all("." in p for p in parts):  # "1,234": a number with a thousands separator
+        return None
+    try:
+        return [float(p) for p in parts]
+    except ValueError:
+        return None
 
 
 def label(key) -> str:
