@@ -159,6 +159,6 @@ def write_closed(mesh: trimesh.Trimesh, clean_cfg, layout, formats: tuple[str, .
     closed, info = closed_companion(src)
     for fmt in formats:
         export(closed, layout.mesh_closed(fmt))
-    log.info("closed mesh: %s, %d faces, %.4g of its area filled (%s)", "watertight" if info["watertight"] else
-             "NOT watertight", info["faces"], info["filled_area"], layout.mesh_closed(formats[0]).name)
+    log.info("closed mesh: %s, %s faces, filled area %.3g scene units² (%s)", "watertight" if info["watertight"]
+             else "NOT watertight", f"{info['faces']:,}", info["filled_area"], layout.mesh_closed(formats[0]).name)
     return {"file": layout.mesh_closed(formats[0]).name, **info}

@@ -3,6 +3,11 @@
 - ``html``: report.html (previews, an interactive 3D view, depth maps, numbers, warnings, parameters), the
   standalone viewer page, and the local server of ``photorecon view``. The 3D viewer is ``viewer.js``, a
   package data file embedded into each page.
+- ``page``: report.html's tables (the summary, the stages, every section of report.json) and its CSS (images
+  and tables within the window's width; the preview's views wrap).
+- ``numbers``: report.json's numbers written for reading: a unit where the number has one, 3 significant
+  digits for measured values, counts with thousands separators (``format_length``, ``format_area``,
+  ``format_seconds``, ``format_count``, ``format_percent``, ``format_value`` by a fact's key name).
 - ``preview``: preview.png, the mesh rendered from a few viewpoints around it.
 """
 from .html import (MESH_NAMES, VIEWER_CSS, VIEWER_ELEVATION_DEG, VIEWER_FOV_DEG, VIEWER_MAX_FACES,
