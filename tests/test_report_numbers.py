@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from photorecon.report import write_html_report
-from photorecon.report.numbers import (format_area, format_count, format_length, format_megabytes, format_percent,
+from photorecon.report.numbers import (format_area, format_bytes, format_count, format_length, format_megabytes, format_percent,
                                        format_seconds, format_value, kind_of, significant)
 from photorecon.report.page import REPORT_CSS, preview_tiles
 
@@ -89,6 +89,14 @@ def test_format_megabytes(x, text):
     assert format_megabytes(x) == text
 
 
+@pytest.mark.parametrize("x, text", [
+    (512, "512 B"), (0, "0 B"), (12_345, "12.1 kB"), (1023.9, "1,020 B"), (1536, "1.5 kB"), (4_718_592, "4.5 MB"), (3 * 2 ** 30, "3 GB"),
+    (NAN, "n/a"), (None, "n/a"),
+])
+def test_format_bytes(x, text):
+    assert format_bytes(x) == text
+
+
 def test_format_value_writes_a_fact_by_its_key():
     """A fact reads by its key's name, so a section added to report.json needs no code of its own."""
     m = "metres"
@@ -100,6 +108,7 @@ def test_format_value_writes_a_fact_by_its_key():
     assert format_value("triangulation_seconds", 3.99e-6) == "< 0.001 s"
     assert format_value("peak_mb", 923.14) == "923 MB"
     assert format_value("atlas_size", 4096) == "4,096 px"
+    assert format_value("file_size", 4_718_592) == "4.5 MB" and format_value("cache_bytes", 2048) == "2 kB"
     assert format_value("rot_mean_deg", 0.489812) == "0.49°"
     assert format_value("faces", 290975) == "290,975"  # an int of an unknown kind: a count
     assert format_value("fscore", 0.964612) == "0.965"  # a float of an unknown kind: 3 digits, no unit

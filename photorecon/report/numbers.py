@@ -2,7 +2,8 @@
 precision. report.json keeps the raw numbers; these functions only write them for reading.
 
 - measured values (lengths, areas, durations, ratios, memory) to 3 significant digits: ``format_length``,
-  ``format_area``, ``format_seconds``, ``format_percent``, ``format_megabytes``, ``format_number``;
+  ``format_area``, ``format_seconds``, ``format_percent``, ``format_megabytes``, ``format_bytes``,
+  ``format_number``;
 - counts as integers with thousands separators: ``format_count``;
 - ``format_value(key, value, units)``: any fact of report.json written by its key's name (``UNIT_OF_KEY`` for
   whole names, ``UNIT_OF_SUFFIX`` for endings such as ``_seconds``, ``_area``, ``_fraction``; ``A_per_B`` as A
@@ -146,6 +147,19 @@ def format_megabytes(mb) -> str:
     return f"{significant(mb)} MB"
 
 
+def format_bytes(n) -> str:
+    """A size in bytes: "512 B", "12.3 kB", "4.5 MB", "1.2 GB" (powers of 1,024, as the log lines' MB)."""
+    bad = _bad(n)
+    if bad is not None:
+        return f"{bad} B" if _infinite(bad) else bad
+    n = float(n)
+    if abs(float(significant(n).replace(",", ""))) < 1024:
+        return f"{significant(n)} B"
+    if abs(float(significant(n / 1024).replace(",", ""))) < 1024:
+        return f"{significant(n / 1024)} kB"
+    return format_megabytes(n / 2 ** 20)
+
+
 def _with(suffix: str):
     def fmt(x, units=None):
         bad = _bad(x)
@@ -161,6 +175,7 @@ KINDS = {
     "percent": lambda x, units=None: format_percent(x),
     "percent_points": _with("%"),  # already a percentage (e.g. 12.3 for 12.3%)
     "megabytes": lambda x, units=None: format_megabytes(x),
+    "bytes": lambda x, units=None: format_bytes(x),
     "degrees": _with("°"),
     "pixels": lambda x, units=None: format_count(x) + (" px" if _bad(x) is None else ""),
     "count": lambda x, units=None: format_count(x),
@@ -169,7 +184,7 @@ KINDS = {
 UNIT_OF_KEY = {
     "seconds": "seconds", "voxel_size": "length", "invent_distance": "length", "support_offset": "length",
     "support_cut": "length", "area": "area", "filled_area": "area", "atlas_size": "pixels", "max_size": "pixels",
-    "peak_mb": "megabytes", "valid_fraction": "percent", "fraction": "percent", "ratio": "percent",
+    "peak_mb": "megabytes", "file_size": "bytes", "bytes": "bytes", "valid_fraction": "percent", "fraction": "percent", "ratio": "percent",
     "length": "length", "distance": "length", "radius": "length", "diagonal": "length", "spacing": "length",
 }
 # key endings, tried in order after UNIT_OF_KEY
@@ -178,7 +193,7 @@ UNIT_OF_SUFFIX = (
     ("_length", "length"), ("_distance", "length"), ("_radius", "length"), ("_diagonal", "length"),
     ("_spacing", "length"), ("_area", "area"), ("_fraction", "percent"), ("_ratio", "percent"),
     ("_pct", "percent_points"), ("_percent", "percent_points"),
-    ("_mb", "megabytes"), ("_deg", "degrees"), ("_degrees", "degrees"), ("_px", "pixels"), ("_pixels", "pixels"),
+    ("_mb", "megabytes"), ("_bytes", "bytes"), ("_deg", "degrees"), ("_degrees", "degrees"), ("_px", "pixels"), ("_pixels", "pixels"),
     ("_count", "count"), ("_faces", "count"), ("_vertices", "count"), ("_views", "count"),
     ("_edges", "count"), ("_points", "count"),
 )
