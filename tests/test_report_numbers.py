@@ -8,6 +8,7 @@ import copy
 import json
 import math
 import re
+import time
 from html.parser import HTMLParser
 
 import cv2
@@ -313,7 +314,6 @@ def test_report_fits_the_window_in_a_browser(tmp_path):
                 got = json.loads(b.eval(probe) or "{}")
                 if got.get("ready") == "complete" and got["width"] == width and len(got["tiles"]) == 4:
                     break
-                import time
                 time.sleep(0.2)
             seen[width] = got
     finally:
