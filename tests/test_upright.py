@@ -104,6 +104,18 @@ def test_auto_tells_an_object_capture_and_the_plane_points_to_the_cameras():
     assert _angle(up.up_world, n) < 1e-9
 
 
+def test_a_rig_of_upside_down_cameras_still_stands_on_its_table():
+    mesh, views = _object_scene(0.002)
+    flipped = [View(v.name, v.intrinsics, np.diag([-1.0, -1.0, 1.0, 1.0]) @ v.cam_from_world) for v in views]
+    m, vs, W = _turn(mesh, flipped, 15)
+    assert _angle(camera_up(vs)[0], W[:3, :3] @ [0, 0, 1]) > 178.0  # the photos' up is the world's down
+    up = upright_frame(m, vs)
+    assert up.rule == "support plane"
+    M = _model_from_original(up, W)
+    assert _angle(M[:3, :3] @ [0, 0, 1], [0, 1, 0]) < 2.0
+    assert (M[:3, :3] @ (BASE + [0, 0, SIZE[2]]) + M[:3, 3])[1] > 0.39
+
+
 def test_forward_faces_the_cameras_of_a_half_ring():
     mesh, views = _object_scene(n=9, arc=180.0)
     m, vs, W = _turn(mesh, views, 4)

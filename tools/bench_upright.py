@@ -15,6 +15,13 @@ cleaning's decision and the support plane it removed); ``search`` looks for the 
 cleaned object, whose support is gone, that falls back on the cameras' up). ``--scene`` forces a rule.
 
     python tools/bench_upright.py OUT [OUT ...] [--scene auto|object|open] [--mesh mesh.ply] [--json out.json]
+
+On the walnut capture 2016_10_24__17_43_02 (../shared/data/walnuts; ``reconstruct --quality preview --poses
+sparse/0``; 2026-11-29, shared 2-core host): the support plane that the search finds in the mesh kept whole
+(``--scene open``) lies 0.43 degrees from the one the cleaning removed (``--scene auto``, an object capture), the
+two base centres 0.16 mm apart, forward 0.2 degrees apart; no camera below Y = 0. That rig's cameras hang upside
+down (their up 178 degrees from the plane's normal): the cleaned mesh without its report's plane ("search" row of
+the auto run) falls back on the cameras' up and comes out upside down.
 """
 from __future__ import annotations
 

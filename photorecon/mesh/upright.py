@@ -11,7 +11,10 @@ cameras'. ``upright_frame`` finds the rigid transform ``model_from_world`` that 
   camera axes: a camera's up is its -y axis). Photographers hold cameras level, so when the cameras face
   different ways up is the direction across every camera's image x axis (signed by their mean up); when they
   all face one way (or there is one camera) it is their mean up. The origin is the mesh's centre on the ground:
-  the median of the vertices across up, their 1st percentile along it.
+  the median of the vertices across up, their 1st percentile along it. This trusts the photos to be upright: a
+  rig whose cameras hang upside down (the walnut captures' turntable rig) gets an upside-down model unless the
+  support plane is known, so pass the cleaned mesh with the plane the cleaning removed in its metadata (or the
+  mesh before the cleaning).
 
 Forward: +Z points from the origin towards the cameras' mean position projected on the ground, so a default
 glTF view (a camera on +Z looking at -Z) shows the side the photos saw. Where that is undefined (cameras all
