@@ -5,7 +5,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from photorecon.cameras import Intrinsics, View, invert_rigid, look_at, look_at_views, project, rigid, ring_positions
+from photorecon.cameras import Intrinsics, View, invert_rigid, look_at, look_at_views, project, rigid
 from photorecon.errors import BadArgumentError, EmptyMeshError
 from photorecon.mesh.upright import apply, apply_views, camera_up, upright_frame
 
