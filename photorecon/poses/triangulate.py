@@ -30,6 +30,7 @@ from ..conventions import colmap_from_intrinsics
 from ..errors import BadArgumentError, InputDataError, OutputError
 from ..io.colmap_text import SparseModel
 from ..io.paths import IMAGE_SUFFIXES, inside
+from ..progress import running
 from ..config_checks import check_config
 
 log = logging.getLogger("photorecon")
@@ -293,9 +294,10 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     ext.sift.estimate_affine_shape = cfg.affine_sift
     ext.num_threads = cfg.threads
     try:
-        pycolmap.extract_features(str(db_path), str(work / "images"), image_names=names,
-                                  camera_mode=pycolmap.CameraMode.PER_IMAGE, reader_options=reader,
-                                  extraction_options=ext, device=pycolmap.Device.cpu)
+        with running(f"sparse points for the given cameras: feature extraction ({len(names)} photos)"):
+            pycolmap.extract_features(str(db_path), str(work / "images"), image_names=names,
+                                      camera_mode=pycolmap.CameraMode.PER_IMAGE, reader_options=reader,
+                                      extraction_options=ext, device=pycolmap.Device.cpu)
     except Exception as exc:  # pycolmap raises RuntimeError / ValueError with COLMAP's check message
         return fail(f"SIFT extraction failed ({_first_line(exc)})")
     stats.seconds["extraction"] = time.perf_counter() - t0
@@ -316,8 +318,9 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     try:
         if matcher == "exhaustive":
             stats.pairs = len(views) * (len(views) - 1) // 2
-            pycolmap.match_exhaustive(str(db_path), matching_options=mopt, verification_options=vopt,
-                                      device=pycolmap.Device.cpu)
+            with running(f"sparse points for the given cameras: matching ({stats.pairs} pairs)"):
+                pycolmap.match_exhaustive(str(db_path), matching_options=mopt, verification_options=vopt,
+                                          device=pycolmap.Device.cpu)
         else:
             pairs = overlap_pairs(views, cfg.overlap_neighbors, cfg.max_view_angle_deg)
             stats.pairs = len(pairs)
@@ -327,8 +330,9 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
             pair_file.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
             popt = pycolmap.ImportedPairingOptions()
             popt.match_list_path = str(pair_file)
-            pycolmap.match_image_pairs(str(db_path), matching_options=mopt, pairing_options=popt,
-                                       verification_options=vopt, device=pycolmap.Device.cpu)
+            with running(f"sparse points for the given cameras: matching ({len(pairs)} pairs)"):
+                pycolmap.match_image_pairs(str(db_path), matching_options=mopt, pairing_options=popt,
+                                           verification_options=vopt, device=pycolmap.Device.cpu)
     except Exception as exc:
         return fail(f"feature matching failed ({_first_line(exc)})")
     stats.seconds["matching"] = time.perf_counter() - t0
@@ -354,8 +358,9 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
         opt.extract_colors = False  # the working copies are contrast-normalised: colours come from the originals
         opt.triangulation.ignore_two_view_tracks = not two_view
         try:
-            tri = pycolmap.triangulate_points(rec, str(db_path), str(work / "images"), str(sparse_dir),
-                                              clear_points=True, options=opt, refine_intrinsics=False)
+            with running("sparse points for the given cameras: triangulation"):
+                tri = pycolmap.triangulate_points(rec, str(db_path), str(work / "images"), str(sparse_dir),
+                                                  clear_points=True, options=opt, refine_intrinsics=False)
         except Exception as exc:  # pycolmap raises RuntimeError / ValueError with COLMAP's check message
             return fail(f"COLMAP's point triangulator failed ({_first_line(exc)})")
         if tri.num_points3D() >= cfg.min_points:
