@@ -12,6 +12,7 @@ one layout; ``reconstruct`` adds the mesh, its previews and reports, and its wor
     ROOT/scene.json             synthetic scene settings and normalisation
     ROOT/mesh.{ply,obj,glb}     the fused, cleaned mesh
     ROOT/mesh_closed.{ply,...}  an object capture's watertight companion of it
+    ROOT/model.glb              the mesh simplified and textured from the photos (+ model.obj, .mtl, .png)
     ROOT/preview.png            the mesh from four viewpoints
     ROOT/report.json, report.html
     ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
@@ -30,6 +31,7 @@ from pathlib import Path
 
 WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
                  "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "mesh_closed.ply", "mesh_closed.obj",
+                 "model.glb", "model.obj", "model.mtl", "model.png",
                  "mesh_closed.glb", "preview.png", "preview_mesh.ply", "report.json",
                  "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
 
@@ -114,7 +116,7 @@ class Layout:
 
     @property
     def textured(self) -> Path:
-        """``reconstruct --texture`` / ``photorecon texture``: mesh.obj + mesh.mtl + texture.png, mesh.glb."""
+        """``photorecon texture``'s default folder: mesh.obj + mesh.mtl + texture.png, mesh.glb."""
         return self.root / "textured"
 
     @property
@@ -128,6 +130,11 @@ class Layout:
     def mesh(self, fmt: str = "ply") -> Path:
         """``mesh.ply``, ``mesh.obj`` or ``mesh.glb``."""
         return self.root / f"mesh.{fmt}"
+
+    def model(self, ext: str = "glb") -> Path:
+        """``model.glb``: the textured model (simplified mesh, texture from the photos); ``model.obj``,
+        ``model.mtl`` and ``model.png`` (its texture) with ``--formats`` including obj."""
+        return self.root / f"model.{ext}"
 
     def mesh_closed(self, fmt: str = "ply") -> Path:
         """``mesh_closed.ply`` (``.obj``, ``.glb``): an object capture's watertight companion of the mesh."""

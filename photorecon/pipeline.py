@@ -12,13 +12,14 @@ OUT layout::
                            side closed)
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
     OUT/preview_mesh.ply   the mesh decimated to <= 200k faces: report.html's 3D view
-    OUT/textured/          with --texture: mesh.obj + mesh.mtl + texture.png, mesh.glb (texture embedded),
-                           preview.png
+    OUT/model.glb          the mesh simplified to --model-faces and textured from the photos (atlas at most
+                           --max-atlas a side, embedded as JPEG); with --formats obj also model.obj + model.mtl +
+                           model.png; --texture off: none
     OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
     OUT/report.html        a self-contained page: an interactive 3D view of the mesh and cameras, the previews,
                            depth maps and numbers (photorecon.report)
     OUT/colmap/            SfM working files (database, distorted model), cached
-    OUT/.stages/           one marker per completed stage (poses, depth, fusion, preview): a hash of its
+    OUT/.stages/           one marker per completed stage (poses, depth, fusion, preview, model): a hash of its
                            settings, of its input files' names, sizes and times and of the stage before, and
                            a SHA-256 of each of its outputs; a re-run skips a stage whose marker matches and
                            whose outputs hold what it wrote, unless force=True
@@ -26,7 +27,7 @@ OUT layout::
 The stages run through ``photorecon.stages.Stages``: every file is written atomically and a stage's marker
 only after all its outputs, so an interrupted run leaves nothing a later run mistakes for complete, and a stage
 that writes other outputs makes every later stage run again. A run that fails leaves the last complete result
-(mesh, previews, textured mesh, report) as it was (``Stages.keeping_result``). The input folder is never written
+(mesh, previews, textured model, report) as it was (``Stages.keeping_result``). The input folder is never written
 to.
 """
 from __future__ import annotations
@@ -37,6 +38,7 @@ import shutil
 import threading
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -55,6 +57,7 @@ from .layout import Layout
 from .resources import check_memory
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
+from .mesh.model import ModelConfig
 from .mesh.texture import TextureConfig
 from .config_checks import check_config, expect_config
 
@@ -71,10 +74,12 @@ class ReconstructConfig:
     depth_preset: str | None = field(default=None, metadata={"help": "preset for --depth-model (see 'photorecon depth --help')", "metavar": "NAME"})
     formats: str = field(default="ply,glb", metadata={"help": "mesh formats to write, comma-separated: ply, obj, glb", "metavar": "LIST"})
     masks: str | None = field(default=None, metadata={"help": "mask folder: NAME.png or NAME.EXT.png at the image's size, 0 = ignore the pixel (default: the images' alpha channel)", "metavar": "DIR"})
-    texture: bool = field(default=False, metadata={"help": "also write a UV-textured mesh baked from the photos (OUT/textured/)"})
+    texture: Literal["on", "off"] = field(default="on", metadata={"help": "on: also write OUT/model.glb, the mesh simplified to --model-faces and textured from the photos; off: skip it ('--texture' alone: on)", "const": "on"})
     min_depth_fraction: float = field(default=0.02, metadata={"help": "MVS: fail (exit 6) when on average less than this fraction of a view's pixels gets a confirmed depth: a mesh from so little depth is a fragment (0 = off; lower it for a subject that fills only a small part of the photos)", "range": (0.0, 1.0)})
 
     def __post_init__(self):
+        if isinstance(self.texture, bool):  # texture=True / False: the former on/off switch
+            self.texture = "on" if self.texture else "off"
         check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
         # options that contradict each other: refused when built, before any stage runs
         if self.depth_model and self.depth != "mvs":
@@ -100,6 +105,7 @@ class StageConfigs:
     clean: CleanConfig = field(default_factory=CleanConfig)
     scale: ScaleConfig = field(default_factory=ScaleConfig)
     texture: TextureConfig = field(default_factory=TextureConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)  # OUT/model.glb: its face budget and atlas size
     cluster: ClusterConfig = field(default_factory=ClusterConfig)  # where the depth and fusion tasks run
     refine: RefineConfig = field(default_factory=RefineConfig)  # photometric refinement of the cleaned mesh
 
@@ -136,7 +142,7 @@ class ReconstructResult(Result):
     depth: dict  # source, views, skipped / excluded, seconds_per_view
     mesh: dict  # vertices, faces, depth_maps_fused, mesher, watertight, boundary_edges, boundary_length,
     # filled_area, fill, closed (mesh_closed: watertight, filled_area), invented_fraction
-    texture: dict  # with --texture: faces, charts, views_used, folder ...
+    texture: dict  # the model stage (OUT/model.glb): faces, atlases, views_used, file_size, cpu_seconds ...
     warnings: list
     units: str  # "metres" when a scale was found, else "arbitrary"
 
@@ -378,15 +384,18 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh],
                    result=True)
 
-        # 4. optional: a UV-textured mesh baked from the photos: OUT/textured/
-        if run.texture:
-            from .mesh.texture import texture_output
+        # 4. the textured model: the mesh simplified and textured from the photos: OUT/model.glb (+ .obj)
+        from .mesh.model import model_output, model_paths
 
-            def texture() -> dict:
+        if run.texture == "on":
+            def model() -> dict:
                 mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
-                return texture_output(out, cfgs.texture, mesh=mesh)
+                return model_output(out, cfgs.model, cfgs.texture, formats, mesh=mesh)
 
-            stages.run("texture", asdict(cfgs.texture), texture, outputs=[layout.textured], result=True)
+            stages.run("model", {"model": asdict(cfgs.model), "texture": asdict(cfgs.texture),
+                                 "obj": "obj" in formats}, model, outputs=model_paths(layout, formats), result=True)
+        else:  # an earlier run's model goes with the run's success (put back if it fails)
+            stages.set_aside(model_paths(layout, ("glb", "obj")) + [layout.stages / "model.json"], group="model")
     except BaseException:
         stages.restore()  # the last complete result put back
         raise
@@ -403,7 +412,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
             photorecon=__version__, python=platform.python_version(), versions=_versions(), input=str(images),
             output=str(out), parameters={k: asdict(v) for k, v in asdict_shallow(cfgs).items()}, stages=stages.stats,
             poses=stages.info.get("poses", {}), depth=stages.info.get("depth", {}), mesh=stages.info.get("fusion", {}),
-            texture=stages.info.get("texture", {}), warnings=warnings,
+            texture=stages.info.get("model", {}), warnings=warnings,
             units=stages.info.get("poses", {}).get("scale", {}).get("units", "arbitrary"))
         stages.set_aside([layout.report_json, layout.report_html], group="report")
         atomic_write_json(layout.report_json, report.to_dict())
@@ -417,7 +426,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
 
 def asdict_shallow(cfgs: StageConfigs) -> dict:
     return {"run": cfgs.run, "sfm": cfgs.sfm, "mvs": cfgs.mvs, "fusion": cfgs.fusion, "clean": cfgs.clean,
-            "scale": cfgs.scale, "texture": cfgs.texture, "cluster": cfgs.cluster, "refine": cfgs.refine}
+            "scale": cfgs.scale, "texture": cfgs.texture, "model": cfgs.model, "cluster": cfgs.cluster,
+            "refine": cfgs.refine}
 
 
 class _WarningCollector(logging.Handler):

@@ -119,7 +119,7 @@ def test_replace_and_stage_configs_are_checked_too():
 
     with pytest.raises(BadArgumentError, match="MVSConfig.n_sources"):
         dataclasses.replace(MVSConfig(), n_sources=0)
-    with pytest.raises(BadArgumentError, match=r"ReconstructConfig.texture \(--texture\): expected true or false"):
+    with pytest.raises(BadArgumentError, match=r"ReconstructConfig.texture \(--texture\): expected one of on, off"):
         StageConfigs(run=ReconstructConfig(texture="yes"))
     with pytest.raises(BadArgumentError, match=r"StageConfigs.mvs: expected a .*MVSConfig .*got dict"):
         StageConfigs(mvs={"max_size": 800})

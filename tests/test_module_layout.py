@@ -77,7 +77,7 @@ def test_mesh_modules_do_not_import_clean_or_fusion():
     """The cleaning sits on the hole filling, never under it; mesh/ does not reach up into fusion/."""
     for p in (ROOT / "mesh").glob("*.py"):
         deps = _imports(p)
-        if p.stem not in ("__init__", "clean", "texture"):
+        if p.stem not in ("__init__", "clean", "texture", "model"):  # texture and model simplify the cleaned mesh
             assert "photorecon.mesh.clean" not in deps, p.name
         assert not any(d.startswith("photorecon.fusion") for d in deps), p.name
 

@@ -171,7 +171,7 @@ def test_damaged_mesh_is_made_again_and_every_stage_logs_to_a_file(blob8, tmp_pa
 
     rc, err = run(tmp_path / "first.log")
     assert rc == 0, err
-    for stage, n in (("poses", None), ("depth", 16), ("fusion", 1), ("preview", 2)):
+    for stage, n in (("poses", None), ("depth", 16), ("fusion", 1), ("preview", 2), ("model", 1)):
         assert f"\n{stage}: started (no complete earlier run)\n" in f"\n{err}", err
         done = [line for line in err.splitlines() if line.startswith(f"{stage}: done in ")]
         assert len(done) == 1 and "s, peak " in done[0] and " MB (" in done[0], err
@@ -220,8 +220,8 @@ def test_a_failed_run_leaves_the_last_complete_result(blob8, tmp_path, monkeypat
 
     out = tmp_path / "out"
     assert main(["-q", *_args(blob8, out)]) == 0
-    names = ("mesh.ply", "preview.png", "preview_mesh.ply", "report.json", "report.html", ".stages/fusion.json",
-             ".stages/preview.json")
+    names = ("mesh.ply", "preview.png", "preview_mesh.ply", "model.glb", "report.json", "report.html",
+             ".stages/fusion.json", ".stages/preview.json", ".stages/model.json")
     before = {n: (out / n).read_bytes() for n in names}
 
     def fails(*a, **k):
@@ -238,7 +238,7 @@ def test_a_failed_run_leaves_the_last_complete_result(blob8, tmp_path, monkeypat
     assert main(["-q", *_args(blob8, out)]) == 0  # the last run's settings: its restored result is reused
     assert _ran(out) == [] and (out / "mesh.ply").read_bytes() == before["mesh.ply"]
     assert main(["-q", *changed]) == 0
-    assert _ran(out) == ["fusion", "preview"] and (out / "mesh.ply").read_bytes() != before["mesh.ply"]
+    assert _ran(out) == ["fusion", "preview", "model"] and (out / "mesh.ply").read_bytes() != before["mesh.ply"]
 
 
 def test_a_colmap_database_opened_to_read_is_unchanged_for_its_record(tmp_path):

@@ -120,30 +120,26 @@ def test_exports_reload_with_their_texture(textured, tmp_path):
     assert "map_Kd texture.png" in (out / "mesh.mtl").read_text()
 
 
-def test_reconstruct_texture_stage_resumes(blob_small, tmp_path):
-    """reconstruct --texture writes OUT/textured/ through the stage runner: a re-run reuses it, a changed texture
-    setting reruns the texture stage alone; the standalone command textures the same output."""
+def test_texture_command_on_a_reconstruct_output(blob_small, tmp_path, caplog):
+    """photorecon texture textures a reconstruct output's mesh into OUT/textured/ (or -o DIR), which photorecon
+    view shows with OUT's cameras; reconstruct's former texture flags (--texture alone, --atlas-size,
+    --texture-faces) still set its model (OUT/model.glb: --max-atlas, --model-faces), with a pointer to the new
+    names."""
     out = tmp_path / "out"
-    args = ["-q", "reconstruct", str(blob_small / "images"), "-o", str(out), "--poses", str(blob_small / "transforms.json"),
-            "--depth", str(blob_small / "depth"), "--texture", "--atlas-size", "512", "--texture-faces", "4000"]
-
-    def ran(*flags):
-        assert main(args + list(flags)) == 0
-        rep = json.loads((out / "report.json").read_text())
-        return [n for n, s in rep["stages"].items() if not s.get("cached")], rep
-
-    names, rep = ran()
-    assert names == ["poses", "depth", "fusion", "preview", "texture"]
-    assert rep["texture"]["faces"] <= 4000 and rep["texture"]["unseen_faces"] <= 4
+    assert main(["reconstruct", str(blob_small / "images"), "-o", str(out), "--poses",
+                 str(blob_small / "transforms.json"), "--depth", str(blob_small / "depth"), "--formats", "ply",
+                 "--texture", "--atlas-size", "512", "--texture-faces", "4000"]) == 0
+    assert "--texture-faces is now --model-faces" in caplog.text and "--atlas-size is now --max-atlas" in caplog.text
+    t = json.loads((out / "report.json").read_text())["texture"]
+    assert t["faces"] <= 4000 and t["unseen_faces"] <= 4 and t["atlas_limit"] == 512 and max(t["atlases"][0]) <= 512
+    assert main(["-q", "texture", str(out), "--atlas-size", "512", "--target-faces", "4000"]) == 0
     m = trimesh.load(out / "textured" / "mesh.glb", process=False, force="mesh")
-    assert m.visual.material.baseColorTexture.size == (512, 512)
+    assert m.visual.material.baseColorTexture.size == (512, 512) and len(m.faces) <= 4000
     from photorecon.report import load_result
 
     shown, cams, images = load_result(out / "textured")  # photorecon view OUT/textured: texture + OUT's cameras
     assert shown.visual.kind == "texture" and len(shown.faces) == len(m.faces)
     assert len(cams) == len(images) == len(json.loads((blob_small / "transforms.json").read_text())["frames"])
-    assert ran()[0] == []
-    assert ran("--padding", "3")[0] == ["texture"]
     assert main(["-q", "texture", str(out), "-o", str(tmp_path / "alone"), "--atlas-size", "512",
                  "--target-faces", "2000"]) == 0
     assert len(trimesh.load(tmp_path / "alone" / "mesh.obj", process=False, force="mesh").faces) <= 2000

@@ -30,8 +30,12 @@ def _add_stage_args(p):
     d = StageConfigs()  # the pipeline's own defaults (e.g. a wider TSDF truncation for MVS depth)
     for title, cfg in (("pipeline", d.run), ("structure from motion", d.sfm), ("multi-view stereo", d.mvs),
                        ("fusion", d.fusion), ("cleaning", d.clean), ("refinement", d.refine), ("metric scale", d.scale),
-                       ("texture (with --texture)", d.texture), ("cluster (Dask)", d.cluster)):
-        add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg)
+                       ("textured model (OUT/model.glb; --texture off: none)", d.model),
+                       ("texturing of the model", d.texture), ("cluster (Dask)", d.cluster)):
+        # the model's face budget and atlas size are --model-faces and --max-atlas (their former names:
+        # aliases of those); photorecon texture has --target-faces and --atlas-size
+        add_config_arguments(p.add_argument_group(title), type(cfg), defaults=cfg,
+                             skip=("texture_faces", "atlas_size") if cfg is d.texture else ())
 
 
 @command
@@ -73,8 +77,9 @@ def _run_reconstruct(args):
     print(f"  files: {args.out}/mesh.ply, preview.png, report.html, report.json")
     if rep.texture:
         t = rep.texture
-        print(f"  textured: {t['faces']} faces, {t['atlas_size']}x{t['atlas_size']} atlas -> {args.out}/textured/"
-              "mesh.obj (+ mesh.mtl, texture.png), mesh.glb")
+        w, h = t["atlases"][0]
+        print(f"  textured model: {t['faces']} faces, {w}x{h} atlas -> {args.out}/model.glb "
+              f"({t['file_size'] / 2**20:.1f} MB)" + (", model.obj (+ model.mtl, model.png)" if "model.obj" in t["files"] else ""))
     if rep.warnings:
         print(f"  {len(rep.warnings)} warning(s); see report.json")
     return 0

@@ -216,6 +216,8 @@ class Parser(argparse.ArgumentParser):
 RENAMED: dict[str, dict[str, str]] = {
     "mvs": {"mvs": "method"},  # --mvs NAME: --method NAME (--mvs.method)
     "fusion": {"fusion_memory": "memory_gb"},  # --fusion-memory GB: --memory-gb GB (--fusion.memory-gb)
+    # reconstruct --texture-faces N, --atlas-size N: --model-faces N, --max-atlas N (the model's texturing)
+    "model": {"texture_faces": "model_faces", "atlas_size": "max_atlas"},
 }
 
 def is_tuning(prefix: str, f: dataclasses.Field) -> bool:
@@ -267,6 +269,8 @@ def add_config_arguments(parser, config_cls, skip: tuple[str, ...] = (), default
         if origin is typing.Literal:
             kw["choices"] = list(args)
             kw["type"] = type(args[0])
+            if f.metadata.get("const") is not None:  # the flag alone means this choice (``--texture``: on)
+                kw["nargs"], kw["const"] = "?", f.metadata["const"]
         elif f.metadata.get("parse"):  # a text setting with its own check (raises argparse.ArgumentTypeError)
             kw["type"] = f.metadata["parse"]
         elif rng is not None:

@@ -30,7 +30,7 @@ _BASIC = ["-h", "--help-all", "-o", "--overwrite", "-q", "-v", "--config", "--qu
 
 COMMON_OPTIONS: dict[str, list[str]] = {
     "reconstruct": _BASIC + ["--scene", "--poses", "--masks", "--texture", "--formats", "--depth-model",
-                             "--intrinsics", "--max-image-size", "--max-size", "--voxel-size",
+                             "--model-faces", "--intrinsics", "--max-image-size", "--max-size", "--voxel-size",
                              "--target-faces", "--cluster", "--marker-size"],
     "sfm": _BASIC + ["--masks", "--intrinsics", "--camera-model", "--max-image-size", "--max-features",
                      "--matching", "--mapper", "--marker-size", "--video-every"],
@@ -57,7 +57,7 @@ SHORT_HELP: dict[str, str] = {
     "--marker-size": "ArUco marker edge length, metres: scale the model to metres",
     "--depth-model": "monocular depth from this ONNX model (MiDaS-style) instead of MVS",
     "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
-    "--texture": "also bake a UV-textured mesh from the photos (OUT/textured/)",
+    "--texture": "on (default): also write OUT/model.glb, the mesh simplified and textured from the photos; off: skip it",
     "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
     "--matching": "image pairs to match: auto, exhaustive, retrieval, sequential, spatial (default: auto)",
     "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",

@@ -50,6 +50,12 @@ def summary_facts(report: dict) -> dict[str, str]:
                   f"filled area {format_area(closed.get('filled_area', 0), units)}"),
              "invented area (farther than invent_distance from every observed point)":
                  NOT_AVAILABLE if mesh.get("invented_fraction") is None else format_percent(mesh["invented_fraction"])}
+    model = report.get("texture") or {}
+    if isinstance(model.get("files"), dict) and model["files"]:  # the model stage's files: model.glb (+ obj)
+        facts["textured model"] = (", ".join(f"{n} ({format_value('file_size', s, units)})"
+                                             for n, s in model["files"].items())
+                                   + f": {format_count(model.get('faces'))} faces, atlas "
+                                   + ", ".join(f"{w}x{h}" for w, h in model.get("atlases") or []))
     scene = mesh.get("scene")
     if isinstance(scene, dict):  # --scene: what was detected (or given) and why
         how = "detected" if scene.get("mode") == "auto" else "given"

@@ -1,0 +1,287 @@
+"""The textured model of a reconstruction: ``OUT/model.glb`` (and ``model.obj`` + ``model.mtl`` + ``model.png``).
+
+``reconstruct``'s model stage (on by default, ``--texture off`` skips it) takes the cleaned, fused mesh
+(``OUT/mesh.ply``, 2-5 M faces on real captures), simplifies it to a face budget (``--model-faces``,
+``clean.simplify``) and textures the simplified surface from the photos with ``texture.texture_mesh`` (one photo
+per face, exposure evened out, charts at up to one texel per photo pixel) in an atlas of at most ``--max-atlas``
+texels a side. When the charts do not fit that atlas at one texel per pixel, ``texture_mesh`` lowers the density
+until they do (``texels_per_pixel`` in the report).
+
+``compact_atlas`` then repacks the charts into the smallest atlas that holds them (texture_mesh packs them into
+rows of the full atlas width): a small model gets a small texture. ``model.glb`` embeds it as JPEG (quality
+``JPEG_QUALITY``: a tenth of the PNG's size for photo content); ``model.obj`` (with ``--formats`` including obj)
+refers to a lossless ``model.png``.
+
+The default face budget was measured on synthetic scenes against the full mesh in pixel footprints
+(docs/benchmarks.md, "Textured model: face budget").
+"""
+from __future__ import annotations
+
+import io
+import json
+import logging
+import struct
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import trimesh
+
+from ..cameras import View
+from ..config_checks import check_config, expect_config
+from ..errors import InputDataError, TextureError
+from ..io.atomic import atomic_path
+from ..layout import Layout
+from ..resources import available_bytes
+from .atlas import _merge_boxes, shelf_pack
+from .texture import TextureConfig, texture_mesh
+
+log = logging.getLogger("photorecon")
+
+DEFAULT_MODEL_FACES = 500_000
+JPEG_QUALITY = 90
+MATERIAL_NAME = "photorecon_model"
+
+
+@dataclass
+class ModelConfig:
+    """Settings of ``reconstruct``'s model stage (``OUT/model.glb``; the texturing itself: ``TextureConfig``)."""
+
+    CLI_PREFIX = "model"
+
+    model_faces: int = field(default=DEFAULT_MODEL_FACES, metadata={"help": "faces of the textured model OUT/model.glb: the mesh is simplified to about this many before texturing (0 = every face of OUT/mesh.ply)", "range": (4, 2_000_000_000), "also": (0,)})
+    max_atlas: int = field(default=8192, metadata={"help": "largest side of the model's texture atlas, texels (charts that do not fit at one texel per photo pixel are packed at a lower density)", "range": (256, 16384)})
+
+    def __post_init__(self):
+        check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
+
+
+@dataclass
+class Model:
+    mesh: trimesh.Trimesh  # TextureVisuals: uv per vertex, material image = ``atlas``
+    atlas: np.ndarray  # (H, W, 3) uint8
+    info: dict
+
+
+def model_paths(layout: Layout, formats: tuple[str, ...] | list[str]) -> list[Path]:
+    """The files the model stage writes: model.glb, and with obj among ``formats`` model.obj, .mtl, .png."""
+    paths = [layout.model("glb")]
+    if "obj" in formats:
+        paths += [layout.model("obj"), layout.model("mtl"), layout.model("png")]
+    return paths
+
+
+def atlas_within_memory(largest: int) -> int:
+    """The largest atlas side from ``largest`` down (halving, at least 1024) whose atlas the memory holds
+    (``texture.check_atlas_memory``'s estimate: 12 bytes per texel)."""
+    size = int(largest)
+    avail = available_bytes()
+    while size > 1024 and size * size * 12 > avail:
+        size //= 2
+    if size < largest:
+        log.warning("model: a %dx%d texture atlas (--max-atlas) needs more memory than is available (%.1f GB); "
+                    "using %dx%d", largest, largest, avail / 2**30, size, size)
+    return size
+
+
+# --- the atlas, repacked ---------------------------------------------------------------------------------------
+def compact_atlas(mesh: trimesh.Trimesh, atlas: np.ndarray, pad: int) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """``mesh`` (TextureVisuals into ``atlas``, (N, N, 3)) with its charts repacked into the smallest atlas
+    that holds them: the texel boxes of its UV islands (faces joined by shared vertices), widened by ``pad`` + 1
+    texels and merged where they overlap by more than two, shelf-packed into the narrowest width (a multiple of 4) whose rows fit
+    in a square, then cropped to the height used. Each box's texels are copied as they are (no resampling);
+    UVs follow their box. Returns the new mesh and atlas."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    H0, W0 = atlas.shape[:2]
+    uv = np.asarray(mesh.visual.uv, np.float64)
+    F = np.asarray(mesh.faces, np.int64)
+    x = uv[:, 0] * W0 - 0.5  # texel coordinates (texel centre i at (i + 0.5) / N; v up)
+    y = (1.0 - uv[:, 1]) * H0 - 0.5
+    nv = len(uv)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    _, comp = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv)),
+                                   directed=False)
+    n = comp.max() + 1
+    box = np.empty((n, 4))
+    box[:, :2] = np.inf
+    box[:, 2:] = -np.inf
+    np.minimum.at(box[:, 0], comp, x)
+    np.minimum.at(box[:, 1], comp, y)
+    np.maximum.at(box[:, 2], comp, x)
+    np.maximum.at(box[:, 3], comp, y)
+    # texture_mesh's rectangle of a chart holds its texel box widened by ``pad``: so does the copy (boxes that
+    # overlap by a texel or two, from rounding, are copied each with its own; more overlap: one box)
+    lo = np.clip(np.floor(box[:, :2]) - pad, 0, [W0 - 1, H0 - 1])
+    hi = np.clip(np.ceil(box[:, 2:]) + pad, 0, [W0 - 1, H0 - 1])
+    group = _merge_boxes(np.concatenate([lo, hi], 1), -1.0)
+    ng = group.max() + 1
+    g_lo = np.full((ng, 2), np.inf)
+    g_hi = np.full((ng, 2), -np.inf)
+    np.minimum.at(g_lo, group, lo)
+    np.maximum.at(g_hi, group, hi)
+    g_lo, g_hi = g_lo.astype(np.int64), g_hi.astype(np.int64)
+    sizes = g_hi - g_lo + 1
+    width = int(np.ceil(max(np.sqrt((sizes[:, 0] * sizes[:, 1]).sum()), sizes[:, 0].max()) / 4) * 4)
+    while True:
+        pos, used = shelf_pack(sizes, width)
+        if used <= width or width >= W0:
+            break
+        width = min(W0, int(np.ceil(width * 1.05 / 4) * 4))
+    height = min(int(np.ceil(used / 4) * 4), H0) if used <= H0 else None
+    if height is None or width > W0:  # cannot happen (the boxes come from a W0 x H0 atlas); kept as it was
+        return mesh, atlas
+    new = np.zeros((height, width, 3), np.uint8)
+    for g in range(ng):
+        (x0, y0), (w, h), (px, py) = g_lo[g], sizes[g], pos[g]
+        new[py:py + h, px:px + w] = atlas[y0:y0 + h, x0:x0 + w]
+    shift = (pos - g_lo)[group[comp]]
+    x2, y2 = x + shift[:, 0], y + shift[:, 1]
+    uv2 = np.stack([(x2 + 0.5) / width, 1.0 - (y2 + 0.5) / height], 1)
+    out = trimesh.Trimesh(np.asarray(mesh.vertices), F, process=False,
+                          visual=trimesh.visual.TextureVisuals(uv=uv2, material=_material(new)))
+    return out, new
+
+
+def _material(atlas: np.ndarray):
+    from PIL import Image
+
+    return trimesh.visual.material.PBRMaterial(name=MATERIAL_NAME, baseColorTexture=Image.fromarray(atlas),
+                                               metallicFactor=0.0, roughnessFactor=1.0)
+
+
+# --- building it ---------------------------------------------------------------------------------------------
+def build_model(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int], np.ndarray],
+                cfg: ModelConfig | None = None, texture: TextureConfig | None = None,
+                masks: Callable[[View], np.ndarray | None] | None = None) -> Model:
+    """``mesh`` simplified to ``cfg.model_faces`` and textured from ``views`` (``images(k)``: the k-th view's
+    photo) with the settings ``texture`` (its ``atlas_size`` and ``texture_faces`` are the model's:
+    ``cfg.max_atlas``, ``cfg.model_faces``), the atlas compacted (``compact_atlas``)."""
+    from .clean import simplify
+
+    cfg = expect_config(cfg, ModelConfig, "cfg")
+    texture = expect_config(texture, TextureConfig, "texture")
+    check_config(cfg)
+    faces_in = len(mesh.faces)
+    t0 = time.process_time()
+    if cfg.model_faces and faces_in > cfg.model_faces:
+        mesh = simplify(mesh, cfg.model_faces)
+        log.info("model: mesh simplified from %d to %d faces", faces_in, len(mesh.faces))
+    cpu_simplify = time.process_time() - t0
+    side = atlas_within_memory(cfg.max_atlas)
+    res = texture_mesh(mesh, views, images, replace(texture, atlas_size=side, texture_faces=0), masks)
+    out, atlas = compact_atlas(res.mesh, res.atlas, texture.padding)
+    info = {key: res.info[key] for key in ("faces", "vertices", "views_used", "views_blind", "unseen_faces",
+                                           "inconsistent_views_dropped", "charts", "texels_per_pixel")
+            if key in res.info}
+    info.update(faces_in=int(faces_in), faces=int(len(out.faces)), vertices=int(len(out.vertices)),
+                atlases=[[int(atlas.shape[1]), int(atlas.shape[0])]], atlas_limit=side,
+                simplify_cpu_seconds=round(cpu_simplify, 2))
+    return Model(out, atlas, info)
+
+
+# --- files -----------------------------------------------------------------------------------------------------
+def _encode(atlas: np.ndarray, fmt: str) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    if fmt == "JPEG":
+        Image.fromarray(atlas).save(buf, format="JPEG", quality=JPEG_QUALITY, subsampling=0)
+    else:
+        Image.fromarray(atlas).save(buf, format="PNG", optimize=False, compress_level=3)
+    return buf.getvalue()
+
+
+def model_glb(mesh: trimesh.Trimesh, atlas: np.ndarray) -> bytes:
+    """``mesh`` as GLB with ``atlas`` embedded as JPEG (trimesh writes the geometry and material around a
+    1x1 stand-in image, whose bytes are then replaced: trimesh itself embeds PNG, or JPEG at quality 75)."""
+    stand_in = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
+                               visual=trimesh.visual.TextureVisuals(uv=mesh.visual.uv,
+                                                                    material=_material(np.zeros((1, 1, 3), np.uint8))))
+    glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(stand_in))
+    return replace_glb_images(glb, {0: (_encode(atlas, "JPEG"), "image/jpeg")})
+
+
+def replace_glb_images(glb: bytes, images: dict[int, tuple[bytes, str]]) -> bytes:
+    """``glb`` with image ``i``'s bytes and MIME type replaced by ``images[i]``; every buffer view moved to its
+    new offset (4-byte aligned) in the one binary chunk."""
+    n = struct.unpack_from("<I", glb, 12)[0]
+    doc = json.loads(glb[20:20 + n])
+    bin_len = struct.unpack_from("<I", glb, 20 + n)[0]
+    data = glb[28 + n:28 + n + bin_len]
+    by_view = {}
+    for i, (payload, mime) in images.items():
+        img = doc["images"][i]
+        by_view[img["bufferView"]] = payload
+        img["mimeType"] = mime
+    new = bytearray()
+    for k, bv in enumerate(doc["bufferViews"]):
+        start = bv.get("byteOffset", 0)
+        chunk = by_view.get(k, data[start:start + bv["byteLength"]])
+        new += b"\0" * (-len(new) % 4)
+        bv["byteOffset"], bv["byteLength"] = len(new), len(chunk)
+        new += chunk
+    new += b"\0" * (-len(new) % 4)
+    doc["buffers"][0]["byteLength"] = len(new)
+    js = json.dumps(doc, separators=(",", ":")).encode()
+    js += b" " * (-len(js) % 4)
+    total = 12 + 8 + len(js) + 8 + len(new)
+    return (struct.pack("<III", 0x46546C67, 2, total) + struct.pack("<II", len(js), 0x4E4F534A) + js
+            + struct.pack("<II", len(new), 0x004E4942) + bytes(new))
+
+
+def export_model(model: Model, layout: Layout, formats: tuple[str, ...] | list[str]) -> dict:
+    """Write ``model_paths(layout, formats)``, each file atomically. Returns file name -> size in bytes."""
+    written = {}
+    path = layout.model("glb")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(model_glb(model.mesh, model.atlas))
+    written[path.name] = path.stat().st_size
+    if "obj" in formats:
+        simple = trimesh.visual.material.SimpleMaterial(name=MATERIAL_NAME, diffuse=(255, 255, 255, 255))
+        obj_mesh = trimesh.Trimesh(model.mesh.vertices, model.mesh.faces, process=False,
+                                   visual=trimesh.visual.TextureVisuals(uv=model.mesh.visual.uv, material=simple))
+        text = trimesh.exchange.obj.export_obj(obj_mesh, include_normals=False, include_texture=True,
+                                               mtl_name=layout.model("mtl").name)
+        mtl = (f"newmtl {MATERIAL_NAME}\nKa 1.000000 1.000000 1.000000\nKd 1.000000 1.000000 1.000000\n"
+               f"Ks 0.000000 0.000000 0.000000\nNs 1.000000\nillum 1\nmap_Kd {layout.model('png').name}\n")
+        for p, payload in ((layout.model("png"), _encode(model.atlas, "PNG")), (layout.model("mtl"), mtl.encode()),
+                           (layout.model("obj"), text.encode())):
+            with atomic_path(p) as tmp:
+                tmp.write_bytes(payload)
+            written[p.name] = p.stat().st_size
+    return written
+
+
+# --- the stage on a reconstruct output folder --------------------------------------------------------------------
+def model_output(out: str | Path, cfg: ModelConfig | None = None, texture: TextureConfig | None = None,
+                 formats: tuple[str, ...] | list[str] = ("glb",), mesh: trimesh.Trimesh | None = None) -> dict:
+    """``reconstruct``'s model stage on its output folder ``out`` (cameras in sparse/0 or transforms.json,
+    photos in images/, masks in masks/): ``mesh`` (default ``out``/mesh.ply) -> ``out``/model.glb (and
+    model.obj, .mtl, .png with obj in ``formats``). Returns the facts for report.json's ``texture`` section."""
+    from ..io.dataset import Dataset
+    from .export import load_mesh
+
+    t0 = time.process_time()
+    out = Path(out)
+    layout = Layout(out)
+    ds = Dataset.open(out)
+    if mesh is None:
+        if not layout.mesh("ply").is_file():
+            raise InputDataError(f"{out}: no mesh.ply to make the textured model from")
+        mesh = load_mesh(layout.mesh("ply"))
+    views = ds.views
+    if not views:
+        raise TextureError(f"{out}: no cameras: the textured model needs the views the mesh was made from")
+    model = build_model(mesh, views, lambda k: ds.image(views[k]), cfg, texture, ds.mask)
+    files = export_model(model, layout, formats)
+    info = {**model.info, "files": files, "file_size": files[layout.model("glb").name],
+            "cpu_seconds": round(time.process_time() - t0, 2)}
+    w, h = info["atlases"][0]
+    log.info("model: %d faces, %dx%d atlas (%.2f texels per photo pixel), %d views used -> %s (%.1f MB)",
+             info["faces"], w, h, info.get("texels_per_pixel", 0.0), info.get("views_used", 0),
+             layout.model("glb"), info["file_size"] / 2**20)
+    return info
