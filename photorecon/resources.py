@@ -66,7 +66,7 @@ def fit_address_space(preload: bool = True) -> None:
         ctypes.CDLL("libc.so.6").mallopt(_M_ARENA_MAX, 2)
     except (OSError, AttributeError):
         pass
-    for name in ("cv2", "pycolmap", "open3d", "numba") if preload else ():  # cv2 first: see poses.sfm._pycolmap
+    for name in ("cv2", "pycolmap", "open3d", "numba") if preload else ():  # cv2 first: see poses._colmap._pycolmap
         try:
             importlib.import_module(name)
         except (ImportError, OSError, RuntimeError) as exc:  # pycolmap: RuntimeError from the ImportError

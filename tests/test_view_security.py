@@ -131,7 +131,7 @@ def test_refuses_to_serve_when_viser_bypasses_the_guard(monkeypatch):
 def test_request_check(host, origin, refused):
     from websockets.datastructures import Headers
 
-    from photorecon.report.html import viewer_request_refusal
+    from photorecon.report.live import viewer_request_refusal
 
     h = Headers([("Host", host)] + ([("Origin", origin)] if origin else []))
     assert (viewer_request_refusal(h, "127.0.0.1") is not None) == refused
@@ -255,7 +255,7 @@ def test_view_while_a_run_writes_the_folder(tmp_path, capsys, caplog):
     from photorecon.cli import main
     from photorecon.io.colmap_text import SparseModel, write_colmap_text
     from photorecon.mesh import export
-    from photorecon.report import html as report_html
+    from photorecon.report import result as report_result
 
     out = tmp_path / "out"
     out.mkdir()
@@ -269,8 +269,8 @@ def test_view_while_a_run_writes_the_folder(tmp_path, capsys, caplog):
                               text=True, env=env)
     try:
         assert writer.stdout.readline().strip() == "ready"
-        old = report_html.LOAD_RETRY_SECONDS
-        report_html.LOAD_RETRY_SECONDS = 1.0
+        old = report_result.LOAD_RETRY_SECONDS
+        report_result.LOAD_RETRY_SECONDS = 1.0
         try:
             t0 = time.monotonic()
             assert main(["view", str(out), "--html", str(page)]) == 3
@@ -280,10 +280,10 @@ def test_view_while_a_run_writes_the_folder(tmp_path, capsys, caplog):
             assert not page.exists()
             writer.stdin.write("fix\n")
             writer.stdin.flush()
-            report_html.LOAD_RETRY_SECONDS = 10.0
+            report_result.LOAD_RETRY_SECONDS = 10.0
             assert main(["view", str(out), "--html", str(page)]) == 0  # tried again until the model was whole
         finally:
-            report_html.LOAD_RETRY_SECONDS = old
+            report_result.LOAD_RETRY_SECONDS = old
         assert any(f"process {writer.pid}" in r.getMessage() and "is writing" in r.getMessage()
                    for r in caplog.records if r.levelname == "WARNING")
         meta = json.loads(re.search(r'id="prv-meta">(.*?)</script>', page.read_text()).group(1))

@@ -26,7 +26,7 @@ log = logging.getLogger("photorecon")
 
 
 def _given_intrinsics(cfg: SfMConfig, width: int, height: int) -> Intrinsics | None:
-    from .ingest import read_K
+    from .given import read_K
 
     if cfg.intrinsics:
         return read_K(cfg.intrinsics, width, height)
@@ -152,7 +152,7 @@ def extract(images_dir: Path, database: Path, cameras: list[dict], cfg: SfMConfi
     return database
 
 
-# the shortest side SIFT works on: COLMAP's SIFT crashes (SIGSEGV) under 16 pixels (ingest.MIN_SIDE)
+# the shortest side SIFT works on: COLMAP's SIFT crashes (SIGSEGV) under 16 pixels (photos.MIN_SIDE)
 SIFT_MIN_SIDE = 32
 
 
@@ -166,10 +166,10 @@ def sift_max_size(max_image_size: int, width: int, height: int) -> int:
 
 def _drop_implausible_focal(database: Path, image_name: str) -> None:
     """The camera of ``image_name`` without the focal length prior COLMAP read from its EXIF, where that is
-    outside what lenses allow (``ingest.FOCAL_FRAC_RANGE``, which the image gate named in its warning): its
+    outside what lenses allow (``photos.FOCAL_FRAC_RANGE``, which the image gate named in its warning): its
     focal length set to COLMAP's guess (1.2 times the long side) and not treated as known. A prior of 10000 mm
     (0.2 degrees) let 29 pairs match but no model start."""
-    from .ingest import FOCAL_FRAC_RANGE
+    from .photos import FOCAL_FRAC_RANGE
 
     pycolmap = _pycolmap()
     db = pycolmap.Database.open(str(database))

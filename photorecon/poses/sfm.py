@@ -111,7 +111,8 @@ WIDE_BASELINE_RETRY_BELOW = 0.9
 
 def _ingest(src: Path, work_images: Path, video_every: int, left_out: dict[str, str] | None = None) -> dict:
     """Oriented copies of the photos (or every k-th video frame) in ``work_images``; what SfM needs of them."""
-    from .ingest import VIDEO_SUFFIXES, ingest_folder, video_frames
+    from .ingest import ingest_folder
+    from .video import VIDEO_SUFFIXES, video_frames
 
     photos = [src] if src.is_file() else [p for p in src.iterdir() if p.is_file()]
     check_space(work_images, 2 * sum(p.stat().st_size for p in photos) + MB)  # WebP becomes a larger PNG
@@ -148,7 +149,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     to ``out/masks/NAME.png``. Each stage is reused from ``out/colmap`` while its inputs (file names, sizes and
     times) and settings are unchanged, unless ``force``. Raises ``NoImagesError`` / ``SfMError`` with one
     clear line on failure, ``InputDataError`` for a mask folder that does not fit the images."""
-    from .ingest import IngestedImage
+    from .photos import IngestedImage
 
     pycolmap = _pycolmap()
     cfg = expect_config(cfg, SfMConfig, "cfg")
@@ -159,7 +160,7 @@ def run_sfm(images_dir: str | Path, out: str | Path, cfg: SfMConfig | None = Non
     masks = Path(masks) if masks else None
     left_out: dict[str, str] = {}
     if masks is not None:
-        from .ingest import MASKED_OUT
+        from .photos import MASKED_OUT
 
         left_out = {name: MASKED_OUT for name in sfm_masks(src, masks)[1]}
     layout = Layout(out)

@@ -24,7 +24,8 @@ def check_sfm_masks(images: str | Path, masks: str | Path) -> dict[str, Path]:
 def sfm_masks(images: str | Path, masks: str | Path) -> tuple[dict[str, Path], list[str]]:
     """``check_sfm_masks``, and the names of the photos whose masks exclude every pixel (the image gate leaves
     them out: ``ingest.ingest_folder``)."""
-    from .ingest import VIDEO_SUFFIXES, list_images
+    from .ingest import list_images
+    from .video import VIDEO_SUFFIXES
     from ..io.images import MASK_HELP, image_size, match_masks, read_mask
 
     images, masks = Path(images), Path(masks)
