@@ -93,10 +93,15 @@ def test_every_config_flag_is_its_field_name(parser):
     from photorecon.pipeline import StageConfigs
 
     actions = parser.command_parser("reconstruct")._option_string_actions
+    # the model stage sets these texturing settings itself: --model-faces, --max-atlas (their former names: aliases)
+    by_model = {("texture", "texture_faces"), ("texture", "atlas_size")}
     for cfg in vars(StageConfigs()).values():
         prefix = config_prefix(type(cfg))
         for f in dataclasses.fields(cfg):
             flag = f"--{prefix}.{f.name.replace('_', '-')}"
+            if (prefix, f.name) in by_model:
+                assert flag not in actions, flag
+                continue
             assert actions[flag].dest == f"{prefix}.{f.name}", flag
             assert not getattr(actions[flag], "renamed_to", None)
 
@@ -108,6 +113,8 @@ def test_every_config_flag_is_its_field_name(parser):
     ("reconstruct", "--fusion.fusion-memory", "--fusion.memory-gb", "3.5", ("fusion", "memory_gb")),
     ("mvs", "--mvs", "--method", "sweep", ("mvs", "method")),
     ("fuse", "--fusion-memory", "--memory-gb", "3.5", ("fusion", "memory_gb")),
+    ("reconstruct", "--texture-faces", "--model-faces", "5000", ("model", "model_faces")),
+    ("reconstruct", "--atlas-size", "--max-atlas", "1024", ("model", "max_atlas")),
 ])
 def test_a_former_flag_still_works_and_names_the_new_one(parser, caplog, command, old, new, value, where):
     import logging
@@ -116,7 +123,9 @@ def test_a_former_flag_still_works_and_names_the_new_one(parser, caplog, command
     from photorecon.depth.mvs import MVSConfig
     from photorecon.fusion import FusionConfig
 
-    cls = {"mvs": MVSConfig, "fusion": FusionConfig}[where[0]]
+    from photorecon.mesh.model import ModelConfig
+
+    cls = {"mvs": MVSConfig, "fusion": FusionConfig, "model": ModelConfig}[where[0]]
     positional = ["I", "-o", "O"] if command == "reconstruct" else ["D", "-o", "O"]
     with caplog.at_level(logging.WARNING, logger="photorecon"):
         by_old = config_from_args(cls, parser.parse_args([command, *positional, old, value]))

@@ -10,7 +10,8 @@ the other surface (Open3D ``RaycastingScene.compute_distance``) in pixel footpri
 OUT's depth maps); the symmetric Hausdorff distance, the larger of the two 95th percentiles, the smaller of the two
 fractions within one footprint; and the CPU seconds of simplifying (``clean.simplify``) and of the whole model
 (``mesh.model.build_model``: simplify + texture + compact) in this process. With OUT's report.json, the model's
-CPU as a fraction of the run's (the sum of its stages' ``cpu_seconds``). Prints a Markdown table.
+CPU as a fraction of the run's (the sum of its other stages' ``cpu_seconds`` plus the model's measured here: OUT must
+come from a run that computed every stage, not a cached re-run). Prints a Markdown table; ``--json FILE``: the rows.
 """
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ def main(argv=None) -> int:
     ap.add_argument("--budgets", default="100000,250000,500000,1000000")
     ap.add_argument("--samples", type=int, default=300_000)
     ap.add_argument("--no-texture", action="store_true", help="distances and simplification only")
+    ap.add_argument("--json", type=Path, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
     budgets = [int(b) for b in args.budgets.split(",")]
     rows = []
@@ -81,6 +83,8 @@ def main(argv=None) -> int:
                     row["model_share"] = row["cpu_model"] / (run_cpu + row["cpu_model"])
             rows.append(row)
             print(json.dumps(row), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
     print("\n| output | full faces | budget | faces | footprint | Hausdorff (fp) | p95 (fp) | within 1 fp | "
           "simplify CPU s | model CPU s | atlas | texels/px | model share of run CPU |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")

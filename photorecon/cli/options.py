@@ -58,6 +58,7 @@ SHORT_HELP: dict[str, str] = {
     "--depth-model": "monocular depth from this ONNX model (MiDaS-style) instead of MVS",
     "--poses": "known cameras (COLMAP folder or transforms.json) instead of SfM",
     "--texture": "on (default): also write OUT/model.glb, the mesh simplified and textured from the photos; off: skip it",
+    "--model-faces": "faces of OUT/model.glb, the textured model (default: 150000; 0 = all of the mesh's)",
     "--camera-model": "camera model to self-calibrate (default: SIMPLE_RADIAL)",
     "--matching": "image pairs to match: auto, exhaustive, retrieval, sequential, spatial (default: auto)",
     "--mapper": "incremental or global (GLOMAP) mapping (default: auto)",

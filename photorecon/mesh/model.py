@@ -40,7 +40,7 @@ from .texture import TextureConfig, texture_mesh
 
 log = logging.getLogger("photorecon")
 
-DEFAULT_MODEL_FACES = 500_000
+DEFAULT_MODEL_FACES = 150_000  # docs/benchmarks.md, "Textured model": <= 15% of the demo's CPU, shape kept
 JPEG_QUALITY = 90
 MATERIAL_NAME = "photorecon_model"
 
