@@ -47,6 +47,7 @@ from ..layout import Layout
 from ..progress import bar
 from ..resources import available_bytes
 from .atlas import _Charts, _merge_boxes, _rect_layout, make_charts, pack_charts, shelf_pack
+from .seams import level_seams
 from .solve import harmonic_fill
 from ..config_checks import check_config, expect_config
 
@@ -71,6 +72,7 @@ class TextureConfig:
     smooth_rounds: int = field(default=6, metadata={"help": "rounds of label smoothing over the face adjacency (0 = best view per face)", "range": (0, 10_000)})
     exposure: bool = field(default=True, metadata={"help": "even out exposure between views (per-view gains)"})
     consistency: float = field(default=20.0, metadata={"help": "a view whose colour of a face is farther than this RGB distance (0-255) from the median is not used for it (0 = off)", "range": (0.0, 1000.0)})
+    seam_levelling: bool = field(default=True, metadata={"help": "even out the colour steps where neighbouring faces take different photos (per-vertex colour offsets, least squares, spread smoothly over each chart)"})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
@@ -378,6 +380,12 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
     _, first, inv = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     inv = inv.reshape(-1)
     new_faces = inv.reshape(-1, 3)
+    levelling = None
+    if cfg.seam_levelling and seen.any():
+        levelling = level_seams(atlas, F, new_faces, len(first), labels, adjacency,
+                                np.asarray(mesh.face_adjacency_edges, np.int64).reshape(-1, 2), uv_corner, fr, pos, size)
+        log.info("texture: seam levelling at %d seam vertices: mean step %.1f -> %.1f (RGB 0-255)",
+                 levelling["seam_vertices"], levelling["seam_step_before"], levelling["seam_step_after"])
     new_vertices = np.asarray(mesh.vertices)[F.reshape(-1)[first]]
     tex = uv_corner.reshape(-1, 2)[first]
     uv = np.stack([(tex[:, 0] + 0.5) / N, 1.0 - (tex[:, 1] + 0.5) / N], 1)
@@ -391,6 +399,7 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
             "views_used": int(len(np.unique(labels[labels >= 0]))), "views_blind": blind,
             "unseen_faces": int(len(unseen)), "inconsistent_views_dropped": dropped, "charts": int(len(charts.rect_box)), "atlas_size": N,
             "texels_per_pixel": round(float(scale), 4),
+            **({"seam_levelling": levelling} if levelling is not None else {}),
             "gains": {views[k].name: [round(float(x), 4) for x in gains[k]] for k in range(len(views))}}
     return Textured(out, atlas, labels, gains, info)
 
