@@ -23,6 +23,14 @@ The steps (``texture_mesh``):
    out of its (exposure-corrected) photo with ``padding`` texels of the photo's own pixels around it, so
    bilinear filtering at chart borders sees real image content, not black.
    Faces no view sees get a small flat-colour cell, its colour diffused from the seen faces around them.
+6. **Seam levelling** (``seams.level_seams``, ``seam_levelling``, on by default): where neighbouring faces take
+   different photos, the colours along the seam still differ a little (gains that do not fit exactly, light that
+   changes with the viewing direction; a lot where ``exposure`` is off). As in Waechter et al. (ECCV 2014) and
+   OpenMVS, every output vertex (one per mesh vertex and chart, so a seam vertex has one per photo meeting there)
+   gets an RGB offset: least squares over the colour differences at the seam vertices (sampled along the seam
+   edges in the baked atlas) plus a term that keeps the offsets of neighbouring vertices of one chart close,
+   so each correction spreads smoothly over its chart. The offsets are added to the atlas, interpolated over
+   each triangle, and carried into the padding from the nearest texel of a chart.
 
 Outputs (``export_textured``, written atomically into one folder): ``mesh.obj`` + ``mesh.mtl`` +
 ``texture.png`` and ``mesh.glb`` with the texture embedded (PBR base colour). UVs follow the OBJ / glTF
