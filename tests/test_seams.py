@@ -99,7 +99,7 @@ def _held_out_errors(tex, mesh):
 def test_levelling_halves_the_seam_steps_of_photos_with_exposure_differences(gain_scene):
     """Exposure correction off, so every seam between photos of different gains shows: with levelling the
     colour step across chart borders, beyond the texture's own change across edges inside charts, is at most
-    half of that without (measured: 10.5 -> 1.2 RGB units), and the held-out renders are closer to the truth."""
+    half of that without (measured: 10.5 -> 1.1 RGB units), and the held-out renders are closer to the truth."""
     ds, mesh, images = gain_scene
     res = {}
     for lev in (False, True):
@@ -116,7 +116,7 @@ def test_levelling_halves_the_seam_steps_of_photos_with_exposure_differences(gai
 def test_levelled_colours_stay_close_to_the_truth(gain_scene):
     """With the defaults (exposure correction and levelling), the held-out renders of the textured true surface
     match the true renders: mean absolute error under 6 RGB units (0-255) and PSNR within 0.5 dB of texturing
-    without levelling (measured 36.8 dB both)."""
+    without levelling (measured 36.7 and 36.8 dB)."""
     ds, mesh, images = gain_scene
     tex = texture_mesh(mesh, ds.views, images, TextureConfig(atlas_size=1024), ds.mask)
     assert tex.info["seam_levelling"]["seam_vertices"] > 0
@@ -125,3 +125,25 @@ def test_levelled_colours_stay_close_to_the_truth(gain_scene):
     err0, psnr0 = _held_out_errors(plain, mesh)
     assert err < 6.0 and psnr > 30.0, (err, psnr)
     assert psnr > psnr0 - 0.5 and err < err0 + 0.3, (err, err0, psnr, psnr0)
+
+
+def test_local_blending_meets_at_the_mean_on_the_seam_and_fades_out():
+    """Two triangles sharing an edge, each in its own rectangle of a flat colour (100 and 160): after blending
+    with a 2-texel strip, texels on the seam take the mean (130) on both sides, a texel 1 texel away moves a
+    quarter of the step, texels 2 or more texels away and outside the rectangles keep their colour."""
+    from photorecon.mesh.seams import blend_seams
+
+    atlas = np.zeros((20, 45, 3), np.uint8)
+    atlas[:, :20] = 100
+    atlas[:, 20:40] = 160
+    faces = np.array([[0, 1, 2], [1, 0, 3]])
+    tex = np.array([[[10.0, 2.0], [10.0, 17.0], [3.0, 10.0]],  # face 0 in rectangle 0, seam at x = 10
+                    [[25.0, 17.0], [25.0, 2.0], [32.0, 10.0]]])  # face 1 in rectangle 1, seam at x = 25
+    n = blend_seams(atlas, faces, np.array([0, 1]), np.array([[0, 1]]), np.array([[0, 1]]), tex, np.array([0, 1]),
+                    np.array([[0, 0], [20, 0]]), np.array([[20, 20], [20, 20]]), width=2.0)
+    a = atlas[..., 1].astype(int)
+    assert n > 0
+    assert a[10, 10] == 130 and a[10, 25] == 130  # on the seam: the mean
+    assert a[10, 9] == 115 and a[10, 11] == 115 and a[10, 26] == 145 and a[10, 24] == 145  # 1 texel away
+    assert a[10, 7] == 100 and a[10, 28] == 160 and a[19, 10] == 100  # 2+ texels away (beyond the edge's end too)
+    assert (a[:, 40:] == 0).all()

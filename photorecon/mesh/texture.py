@@ -30,7 +30,9 @@ The steps (``texture_mesh``):
    gets an RGB offset: least squares over the colour differences at the seam vertices (sampled along the seam
    edges in the baked atlas) plus a term that keeps the offsets of neighbouring vertices of one chart close,
    so each correction spreads smoothly over its chart. The offsets are added to the atlas, interpolated over
-   each triangle, and carried into the padding from the nearest texel of a chart.
+   each triangle, and carried into the padding from the nearest texel of a chart. Then a strip of 2 texels on
+   each side of every seam is blended linearly towards the other photo's colour on the seam (what the offsets,
+   one per vertex, leave along the seam).
 
 Outputs (``export_textured``, written atomically into one folder): ``mesh.obj`` + ``mesh.mtl`` +
 ``texture.png`` and ``mesh.glb`` with the texture embedded (PBR base colour). UVs follow the OBJ / glTF
