@@ -147,3 +147,15 @@ def test_local_blending_meets_at_the_mean_on_the_seam_and_fades_out():
     assert a[10, 9] == 115 and a[10, 11] == 115 and a[10, 26] == 145 and a[10, 24] == 145  # 1 texel away
     assert a[10, 7] == 100 and a[10, 28] == 160 and a[19, 10] == 100  # 2+ texels away (beyond the edge's end too)
     assert (a[:, 40:] == 0).all()
+
+
+def test_a_step_only_a_few_seam_vertices_show_is_not_levelled():
+    """Between charts 0 and 1 the step is 30 +- 1 at ten vertices and 90 at one (a silhouette in one photo); between
+    charts 0 and 2 it is -20 +- 1 at five: only the 90 is left out."""
+    from photorecon.mesh.seams import seam_inliers
+
+    rng = np.random.default_rng(0)
+    group = np.r_[np.zeros(11, int), np.ones(5, int)]
+    diff = np.r_[30 + rng.uniform(-1, 1, 10), 90.0, -20 + rng.uniform(-1, 1, 5)][:, None] * np.ones(3)
+    ok = seam_inliers(group, diff)
+    assert ok.tolist() == [True] * 10 + [False] + [True] * 5

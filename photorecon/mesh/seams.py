@@ -9,7 +9,9 @@ seam has one per photo meeting there) gets a colour offset ``g`` (RGB, 0-255 uni
 
 where ``f_a(v)`` is the colour of photo ``a`` along the seam edges at ``v`` (samples along each seam edge
 taken from the baked atlas, weighted by their closeness to ``v``: 1 at ``v``, 0 at the edge's other end). The
-first term closes the steps at the seams, the second spreads each correction smoothly over its chart.
+first term closes the steps at the seams, the second spreads each correction smoothly over its chart. Seam
+vertices whose step stands out from the others between the same two charts (``seam_inliers``: a silhouette or
+an occluder in one photo, a misplaced surface) are left out of the first term.
 ``solve_offsets`` solves this sparse least-squares problem, for the three channels at once (conjugate gradients
 on its normal equations with a chart-wise coarse correction; a tiny ridge ``1e-10 |g|^2`` picks the smallest
 offsets where only differences are fixed: a constant per seam-connected group of charts). ``apply_offsets`` adds the offsets
@@ -33,6 +35,7 @@ from ..io.images import sample_bilinear
 from ..progress import bar
 
 BLEND = 2.0  # texels each side of a seam that local blending reaches (0 = none)
+ROBUST = True
 LAMBDA = 0.1  # the regulariser's weight (its rows' coefficient, as in MVS-Texturing)
 RIDGE = 1e-10  # weight of |g|^2: fixes the free constant of each group of charts at the smallest offsets
 # (small against LAMBDA^2: the offsets of a chart would fall off over sqrt(LAMBDA^2 / RIDGE) = 10^4 edges)
@@ -88,6 +91,35 @@ def seam_differences(faces: np.ndarray, out_faces: np.ndarray, labels: np.ndarra
     wsum = np.bincount(inv, ws, minlength=len(uniq))
     diff = np.stack([np.bincount(inv, cb[:, c] - ca[:, c], minlength=len(uniq)) for c in range(3)], 1)
     return uniq[:, 0], uniq[:, 1], diff / wsum[:, None]
+
+
+def seam_inliers(group: np.ndarray, diff: np.ndarray, k: float = 3.0, floor: float = 4.0) -> np.ndarray:
+    """(P,) bool: the seam pairs whose colour difference ``diff`` (P, 3) is within ``k`` robust standard
+    deviations (1.4826 MAD, at least ``floor`` RGB units) of the median over their ``group`` (P,: the pair of
+    charts they join), in every channel. A step that an exposure or light difference makes is about the same
+    all along the seam between two charts; one that only a few vertices show (a silhouette or an occluder in one
+    photo, a misplaced surface) is not levelled, it would spread over the chart."""
+    if not len(group):
+        return np.zeros(0, bool)
+    _, g = np.unique(group, return_inverse=True)
+    g = g.reshape(-1)
+    order = np.argsort(g, kind="stable")
+    gs = g[order]
+    starts = np.flatnonzero(np.r_[True, gs[1:] != gs[:-1]])
+    counts = np.diff(np.r_[starts, len(gs)])
+    d = diff[order]
+    med = np.empty_like(d)
+    mad = np.empty_like(d)
+    for n in np.unique(counts):
+        sel = (starts[counts == n][:, None] + np.arange(n)[None]).reshape(-1)
+        block = d[sel].reshape(-1, n, 3)
+        m = np.median(block, axis=1, keepdims=True)
+        med[sel] = np.broadcast_to(m, block.shape).reshape(-1, 3)
+        mad[sel] = np.repeat(np.median(np.abs(block - m), axis=1), n, axis=0)
+    ok = np.all(np.abs(d - med) <= np.maximum(k * 1.4826 * mad, floor), axis=1)
+    out = np.empty(len(g), bool)
+    out[order] = ok
+    return out
 
 
 def solve_offsets(n: int, a: np.ndarray, b: np.ndarray, diff: np.ndarray, reg_edges: np.ndarray,
@@ -305,6 +337,12 @@ def level_seams(atlas: np.ndarray, faces: np.ndarray, out_faces: np.ndarray, n_o
     texels wide along the seams (0 = none). Returns facts for the report."""
     a, b, diff = seam_differences(faces, out_faces, labels, adjacency, adjacency_edges, tex, atlas)
     seen = labels >= 0
+    rect_of = np.zeros(n_out, np.int64)
+    rect_of[out_faces[seen].reshape(-1)] = np.repeat(face_rect[seen], 3)
+    n_pairs = len(a)
+    if ROBUST:
+        ok = seam_inliers(rect_of[a] * (int(face_rect.max()) + 1) + rect_of[b], diff)
+        a, b, diff = a[ok], b[ok], diff[ok]
     fo = out_faces[seen]
     reg = np.concatenate([fo[:, [0, 1]], fo[:, [1, 2]], fo[:, [2, 0]]])
     reg = np.unique(np.sort(reg, 1), axis=0)
@@ -315,7 +353,7 @@ def level_seams(atlas: np.ndarray, faces: np.ndarray, out_faces: np.ndarray, n_o
         if blend > 0 else 0
     step_before = float(np.abs(diff).mean()) if len(diff) else 0.0
     step_after = float(np.abs(diff - (g[a] - g[b])).mean()) if len(diff) else 0.0
-    return {"seam_vertices": int(len(a)), "rectangles_changed": int(changed), "iterations": stats.get("iterations", 0),
+    return {"seam_vertices": int(n_pairs), "seam_outliers": int(n_pairs - len(a)), "rectangles_changed": int(changed), "iterations": stats.get("iterations", 0),
             "texels_blended": blended,
             "seam_step_before": round(step_before, 2), "seam_step_after": round(step_after, 2),
             "mean_abs_offset": round(float(np.abs(g).mean()), 2) if len(g) else 0.0}
