@@ -13,12 +13,18 @@ to separate texture from geometry error. Target: textured >= vertex-coloured + 3
 Time: texturing 30 views of 640x480 and a 300k-face mesh (the blob's fused mesh decimated), end to end
 (visibility, view selection, exposure, charts, baking, export of OBJ/MTL/PNG + GLB). Target <= 30 s on 2 cores.
 
+Seams: on the fused mesh of each scene, the colour step across chart borders (``seams.seam_steps``: the texture
+sampled one texel either side of each edge between faces with different photos, mean absolute RGB difference
+0-255, minus the same across edges inside charts: the ``excess`` step) and the held-out PSNR, without and with
+seam levelling, for the photos as rendered and for the photos scaled by a random gain per view and channel
+(``--gains``: +-20% by default), exposure correction on and off.
+
 Where the error lies: each fidelity row also splits the squared error by region (``error_regions``: near
 occlusion boundaries, where the geometry is off, the rest) and ``--error-maps DIR`` writes the renders and their
 error images.
 
     python tools/bench_texture.py [--views 30] [--faces 30000] [--json out.json] [--only fidelity|time]
-                                  [--scenes blob,room,bunny] [--error-maps DIR]
+                                  [--scenes blob,room,bunny] [--error-maps DIR] [--gains 0.2]
 """
 from __future__ import annotations
 
@@ -40,6 +46,7 @@ from photorecon.mesh import CleanConfig, clean, load_mesh, simplify
 from photorecon.resources import peak_bytes, reset_peak
 from photorecon.render import Renderer
 from photorecon.synthetic import SynthConfig, make_views, synthesize
+from photorecon.mesh.seams import seam_steps
 from photorecon.mesh.texture import TextureConfig, export_textured, texture_mesh
 
 
@@ -98,9 +105,36 @@ def fused_mesh(root: Path) -> tuple[trimesh.Trimesh, Dataset]:
                  CleanConfig(min_component=0.0)), ds
 
 
-def texture_dataset(mesh: trimesh.Trimesh, ds: Dataset, cfg: TextureConfig):
+def texture_dataset(mesh: trimesh.Trimesh, ds: Dataset, cfg: TextureConfig, gains: np.ndarray | None = None):
+    """``mesh`` textured from ``ds``'s photos, each multiplied by ``gains[k]`` (V, 3) if given."""
     views = ds.views
-    return texture_mesh(mesh, views, lambda k: ds.image(views[k]), cfg, ds.mask)
+
+    def images(k):
+        img = ds.image(views[k])
+        if gains is None:
+            return img
+        return np.clip(img.astype(np.float32) * gains[k] + 0.5, 0, 255).astype(np.uint8)
+
+    return texture_mesh(mesh, views, images, cfg, ds.mask)
+
+
+def seam_rows(name: str, mesh: trimesh.Trimesh, ds: Dataset, held, truths, atlas: int, spread: float) -> list[dict]:
+    """Seam steps and held-out PSNR without and with seam levelling: photos as rendered (exposure correction
+    on), and scaled by a random gain per view and channel within ``1 +- spread`` (exposure correction on, off)."""
+    rng = np.random.default_rng(7)
+    n = len(ds.views)
+    gains = rng.uniform(1 - spread, 1 + spread, (n, 1)) * rng.uniform(0.97, 1.03, (n, 3))
+    rows = []
+    for g, exposure in ((None, True), (gains, True), (gains, False)):
+        row = {"scene": name, "gains": 0.0 if g is None else spread, "exposure": exposure}
+        for lev in (False, True):
+            tex = texture_dataset(mesh, ds, TextureConfig(atlas_size=atlas, exposure=exposure, seam_levelling=lev), g)
+            r = Renderer(tex.mesh, unlit=True)
+            key = "levelled" if lev else "plain"
+            row[key] = {**seam_steps(tex.mesh, tex.atlas, tex.labels),
+                        "psnr": float(np.mean([psnr(r.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]))}
+        rows.append(row)
+    return rows
 
 
 def subdivided_truth(gt: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
@@ -128,9 +162,11 @@ def photo_vertex_colors(mesh: trimesh.Trimesh, ds: Dataset) -> trimesh.Trimesh:
     return trimesh.Trimesh(V, mesh.faces, vertex_colors=np.clip(col + 0.5, 0, 255).astype(np.uint8), process=False)
 
 
-def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int, maps: Path | None = None) -> list[dict]:
+def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int, maps: Path | None = None,
+             spread: float = 0.2) -> tuple[list[dict], list[dict]]:
     """Two rows: the fused mesh (TSDF of the true depth, decimated, its own vertex colours) and the true surface
-    (subdivided, vertex colours averaged from the photos), each textured too."""
+    (subdivided, vertex colours averaged from the photos), each textured too; and the fused mesh's seam rows
+    (``seam_rows``)."""
     root = tmp / name
     synthesize(cfg, root, overwrite=True)
     full, ds = fused_mesh(root)
@@ -138,7 +174,7 @@ def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int, map
     truth_r = Renderer(gt, cfg.seed, cfg.background)
     held = held_out_views(cfg)
     truths = [truth_r.render(v) for v in held]
-    rows = []
+    rows, seams = [], []
     for geometry, mesh in (("fused", simplify(full, faces)), ("true", photo_vertex_colors(subdivided_truth(gt, faces), ds))):
         t0 = time.perf_counter()
         tex = texture_dataset(mesh, ds, TextureConfig(atlas_size=atlas))
@@ -172,8 +208,9 @@ def fidelity(name: str, cfg: SynthConfig, faces: int, tmp: Path, atlas: int, map
             r_full = Renderer(full, unlit=True)
             row["psnr_vertex_full"] = float(np.mean([psnr(r_full.render(v).rgb, t.rgb, t.mask) for v, t in zip(held, truths)]))
             row["full_faces"] = len(full.faces)
+            seams = seam_rows(name, mesh, ds, held, truths, atlas, spread)
         rows.append(row)
-    return rows
+    return rows, seams
 
 
 def timing(views: int, faces: int, tmp: Path, atlas: int) -> dict:
@@ -208,9 +245,10 @@ def main() -> None:
     ap.add_argument("--scenes", default="blob,room,bunny")
     ap.add_argument("--json", help="write the figures to this JSON file")
     ap.add_argument("--error-maps", help="write truth | textured | error images of the held-out views to this folder")
+    ap.add_argument("--gains", type=float, default=0.2, help="seam table: photos scaled by a random gain in 1 +- this")
     args = ap.parse_args()
     progress.set_enabled(False)
-    res = {"fidelity": [], "time": None}
+    res = {"fidelity": [], "seams": [], "time": None}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         if args.only != "time":
@@ -225,7 +263,10 @@ def main() -> None:
                     cfg = SynthConfig(mesh=str(BUNNY), up="y", views=args.views)
                 else:
                     cfg = SynthConfig(scene=name, views=args.views)
-                for r in fidelity(name, cfg, args.faces, tmp, args.atlas, Path(args.error_maps) if args.error_maps else None):
+                rows, seams = fidelity(name, cfg, args.faces, tmp, args.atlas,
+                                       Path(args.error_maps) if args.error_maps else None, args.gains)
+                res["seams"] += seams
+                for r in rows:
                     res["fidelity"].append(r)
                     full = (f"; full fused mesh ({r['full_faces']:,} faces) with vertex colours: "
                             f"{r['psnr_vertex_full']:.2f} dB") if "full_faces" in r else ""
@@ -235,6 +276,16 @@ def main() -> None:
                     print("  squared error by region (share of pixels: textured / vertex colours): " + "; ".join(
                         f"{k} {v['pixels']:.1%}: {v['mse_textured']:.1f} / {v['mse_vertex']:.1f}"
                         for k, v in r["error_regions"].items()), flush=True)
+            if res["seams"]:
+                print("\n| scene | photo gains | exposure | seam step: plain / levelled | inside charts | excess: plain / "
+                      "levelled | PSNR dB: plain / levelled |")
+                print("|---|---|---|---|---|---|---|")
+                for r in res["seams"]:
+                    p, lv = r["plain"], r["levelled"]
+                    print(f"| {r['scene']} | {'+-%d%%' % round(100 * r['gains']) if r['gains'] else 'none'} | "
+                          f"{'on' if r['exposure'] else 'off'} | {p['seam']:.2f} / {lv['seam']:.2f} | "
+                          f"{p['interior']:.2f} | {p['excess']:.2f} / **{lv['excess']:.2f}** | "
+                          f"{p['psnr']:.2f} / {lv['psnr']:.2f} |", flush=True)
         if args.only != "fidelity":
             t = timing(args.views, args.time_faces, tmp, args.atlas)
             res["time"] = t
