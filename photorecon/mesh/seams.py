@@ -171,22 +171,25 @@ def solve_offsets(n: int, a: np.ndarray, b: np.ndarray, diff: np.ndarray, reg_ed
     def precondition(r):
         return dinv[:, None] * r + Z @ coarse.solve(np.asarray(Z.T @ r))
 
+    def dot(u, v):  # per channel
+        return np.einsum("ij,ij->j", u, v)
+
     x = np.zeros((m, 3))
     r = rhs.copy()
-    stop = rtol * np.maximum(np.linalg.norm(rhs, axis=0), 1e-30)
+    stop = rtol * np.maximum(np.sqrt(dot(rhs, rhs)), 1e-30)
     z = precondition(r)
     p = z.copy()
-    rz = (r * z).sum(0)
+    rz = dot(r, z)
     it = 0
     for it in range(1, max_iter + 1):
         Ap = A @ p
-        alpha = rz / np.maximum((p * Ap).sum(0), 1e-300)
+        alpha = rz / np.maximum(dot(p, Ap), 1e-300)
         x += alpha * p
         r -= alpha * Ap
-        if np.all(np.linalg.norm(r, axis=0) <= stop):
+        if np.all(np.sqrt(dot(r, r)) <= stop):
             break
         z = precondition(r)
-        rz_new = (r * z).sum(0)
+        rz_new = dot(r, z)
         p = z + (rz_new / np.maximum(rz, 1e-300)) * p
         rz = rz_new
     g[idx] = x
@@ -344,8 +347,9 @@ def level_seams(atlas: np.ndarray, faces: np.ndarray, out_faces: np.ndarray, n_o
         ok = seam_inliers(rect_of[a] * (int(face_rect.max()) + 1) + rect_of[b], diff)
         a, b, diff = a[ok], b[ok], diff[ok]
     fo = out_faces[seen]
-    reg = np.concatenate([fo[:, [0, 1]], fo[:, [1, 2]], fo[:, [2, 0]]])
-    reg = np.unique(np.sort(reg, 1), axis=0)
+    reg = np.sort(np.concatenate([fo[:, [0, 1]], fo[:, [1, 2]], fo[:, [2, 0]]]), 1)
+    key = np.unique(reg[:, 0] * np.int64(n_out) + reg[:, 1])  # each edge once
+    reg = np.stack([key // n_out, key % n_out], 1)
     stats: dict = {}
     g = solve_offsets(n_out, a, b, diff, reg, lam, stats=stats)
     changed = apply_offsets(atlas, g, out_faces, tex, face_rect, pos, size)
