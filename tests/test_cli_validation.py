@@ -470,6 +470,7 @@ def test_sigterm_is_like_ctrl_c_and_the_run_resumes(blob_small, tmp_path):
     assert (out / "mesh.ply").is_file()
 
 
+@pytest.mark.slow
 def test_stdout_closed_by_its_reader_is_a_quiet_exit_141(tiny):
     """``photorecon eval ... | head -1``: the reader goes away before the report is printed; no error line
     about a broken pipe, exit 141 (as a shell reports a process ended by SIGPIPE)."""
@@ -483,6 +484,7 @@ def test_stdout_closed_by_its_reader_is_a_quiet_exit_141(tiny):
     assert err.strip() == "", err
 
 
+@pytest.mark.slow
 def test_quiet_success_writes_nothing_to_stderr(blob_small, tmp_path):
     """``-q`` means errors only: a fresh process that runs PatchMatch, and another that fuses its depth maps
     (their normals make the tangent-plane test the first parallel kernel), print their one summary line on

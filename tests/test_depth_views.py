@@ -90,6 +90,7 @@ def test_views_without_points_are_kept(renderer):
     assert choose_depth_views(no_points, MVSConfig()).reason == "no sparse points"
 
 
+@pytest.mark.slow
 def test_depth_stage_and_fusion_use_only_the_chosen_views(tmp_path):
     """48 views of one object: the depth stage writes depth maps for the chosen views only (the report says how
     many of how many), and fusing those gives the object's surface."""
@@ -175,6 +176,7 @@ def _short_tracks(model, keep: int, seed: int = 0):
     return replace(model, observations=obs)
 
 
+@pytest.mark.slow
 def test_large_capture_auto_also_covers_the_coarse_surface(tmp_path):
     """``--depth-views auto`` on 40 or more views: after the sparse points' cover, PatchMatch's coarsest round
     for the views it kept and the cover of that dense surface among them; the depth maps written are that
@@ -262,6 +264,7 @@ def test_depth_resolution_halves_views_whose_surface_full_views_see_as_finely(re
     assert not coarse_depth_views(ring, maps, MVSConfig(depth_views="coarse", depth_resolution="full")).resolution
 
 
+@pytest.mark.slow
 def test_half_resolution_depth_maps_fuse_as_well_as_full_ones(tmp_path):
     """End to end on a ring of 40 photos of the blob at 224x168 (``--depth-views coarse``, PatchMatch): the views
     the choice halves (8 of 27 measured) get depth maps of half the working size, their geometric filter and their

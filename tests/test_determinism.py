@@ -27,6 +27,7 @@ def _ids_by_name(database):
         db.close()
 
 
+@pytest.mark.slow
 def test_sfm_twice_from_scratch_gives_the_same_cameras(ring_small, tmp_path):
     from photorecon.poses.sfm import SfMConfig, run_sfm
 
@@ -65,6 +66,7 @@ def test_extraction_numbers_images_by_name_whatever_order_they_come_in(ring_smal
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fwd.db", "rev.db"]  # no temporary left
 
 
+@pytest.mark.slow
 def test_given_cameras_triangulate_to_the_same_points_twice(ring_small, tmp_path):
     """Depth ranges and view selection come from these points when cameras are given without them: each pair's
     RANSAC is seeded, and the points are numbered by position (the triangulator's threads number them in any

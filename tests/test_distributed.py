@@ -63,6 +63,7 @@ def test_cluster_spec_parsing():
             parse_cluster(bad)
 
 
+@pytest.mark.cluster
 def test_cluster_depth_and_mesh_match_in_process(tiny, cluster, in_process_depth, tmp_path):
     ref_dir, ref_rep = in_process_depth
     ds = Dataset.open(tiny)
@@ -81,6 +82,7 @@ def test_cluster_depth_and_mesh_match_in_process(tiny, cluster, in_process_depth
     assert mesh_metrics(chunked, single, tau=0.005 * diag, n_samples=30_000).fscore >= 0.999
 
 
+@pytest.mark.cluster
 def test_worker_killed_during_depth_stage_run_completes(tiny, cluster, in_process_depth, tmp_path):
     ds = Dataset.open(tiny)
     pids = list(cluster.client.run(os.getpid).values())
@@ -126,6 +128,7 @@ class _Interrupt:
             raise KeyboardInterrupt
 
 
+@pytest.mark.cluster
 def test_interrupted_cluster_reconstruct_resumes(tiny, cluster, tmp_path, monkeypatch):
     from photorecon.pipeline import ReconstructConfig, StageConfigs, reconstruct
 
@@ -150,6 +153,7 @@ def test_interrupted_cluster_reconstruct_resumes(tiny, cluster, tmp_path, monkey
     _same_depth(_depths(tmp_path / "fresh"), _depths(out / "depth"))
 
 
+@pytest.mark.slow
 def test_chunked_fusion_equals_single_volume(tiny, tmp_path):
     """Rendered depth of the blob: chunks of 32 voxels (many borders) stitched = one volume, face for face."""
     ds = Dataset.open(tiny)

@@ -3,6 +3,7 @@ a procedural texture; the reference depth map gets holes, the other view's depth
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy import ndimage as ndi
 
 from photorecon.cameras import Intrinsics, View
@@ -177,6 +178,7 @@ def test_plane_confirmed_by_depth_maps_but_not_by_the_images_is_not_filled():
     assert filled[hole].mean() > 0.95
 
 
+@pytest.mark.slow
 def test_stereo_pair_fill_adds_correct_depth_without_more_wrong_depth(tmp_path_factory):
     """run_mvs on a rectified pair of the room, without and with --fill-gaps on: the fill answers more of the
     pixels both views see within 2 px of disparity, and the share of answers off by more than 2 px does not grow."""

@@ -25,6 +25,7 @@ def gt(blob_fusion):
     return trimesh.load(blob_fusion / "gt_mesh.ply", process=False)
 
 
+@pytest.mark.slow
 def test_tsdf_matches_ground_truth(frames, gt, blob_fusion):
     ds = Dataset.open(blob_fusion)
     mesh = clean(fuse(frames, FusionConfig(mesher="tsdf"), ds.model.points))
@@ -36,6 +37,7 @@ def test_tsdf_matches_ground_truth(frames, gt, blob_fusion):
     assert mesh.visual.kind == "vertex" and np.asarray(mesh.visual.vertex_colors)[:, :3].std() > 5
 
 
+@pytest.mark.slow
 def test_same_depth_maps_give_the_same_mesh(frames, blob_fusion):
     """Marching cubes lists vertices and faces in a thread-dependent order; the fused and cleaned mesh must not
     depend on it (the same inputs, the same mesh.ply)."""
@@ -50,6 +52,7 @@ def test_same_depth_maps_give_the_same_mesh(frames, blob_fusion):
     assert np.all(F[:, 0] < F[:, 1]) and np.all(F[:, 0] < F[:, 2])
 
 
+@pytest.mark.slow
 def test_grid_mesher_one_surface(frames, gt):
     mesh = clean(fuse(frames, FusionConfig(mesher="grid")))
     m = mesh_metrics(mesh, gt, n_samples=50_000)
@@ -187,6 +190,7 @@ def test_metrics_known_offset():
     assert m2.precision == pytest.approx(1.0) and m2.recall == pytest.approx(0.5, abs=0.05)
 
 
+@pytest.mark.slow
 def test_cli_fuse_and_eval(blob_small, tmp_path, capsys):
     from photorecon.cli import main
 
@@ -205,6 +209,7 @@ def test_cli_fuse_and_eval(blob_small, tmp_path, capsys):
     assert main(["-q", "eval", "--mesh", str(out / "mesh.ply")]) == 2
 
 
+@pytest.mark.slow
 def test_confidence_weighted_tsdf(frames, gt):
     """Weights of 1 reproduce Open3D's own integration; weights of 0 integrate nothing."""
     ones = [DepthFrame(f.view, f.depth, f.color, np.ones_like(f.depth)) for f in frames]
@@ -261,7 +266,8 @@ def _reference_weighted_update(vbg, coords, f, voxel, trunc, depth_max, normal_s
         weight[li] = w_old + w
 
 
-@pytest.mark.parametrize("normal_sdf, form", [(0.0, "float32"), (0.3, "float32"), (0.3, "half_kept"), (0.3, "ones")])
+@pytest.mark.parametrize("normal_sdf, form", [(0.0, "float32")] + [
+    pytest.param(0.3, form, marks=pytest.mark.slow) for form in ("float32", "half_kept", "ones")])
 def test_weighted_kernel_matches_numpy_reference(normal_sdf, form):
     """The compiled kernel against the reference, with float32 normals; with float16 normals read through a
     mask of kept pixels (packed bits, as the chunked fusion passes them); with weight 1 per pixel (``ones``)."""
@@ -337,6 +343,7 @@ def test_weighted_kernel_matches_numpy_reference(normal_sdf, form):
                                atol=1e-3, rtol=0)
 
 
+@pytest.mark.slow
 def test_auto_voxel_follows_the_footprint(frames, caplog):
     from photorecon.fusion import pixel_footprint, tsdf_voxel_size
 
@@ -365,6 +372,7 @@ def test_auto_voxel_follows_the_footprint(frames, caplog):
         tsdf_voxel_size(frames, FusionConfig(voxel_size=voxel, memory_limit_gb=0.05))
 
 
+@pytest.mark.slow
 def test_low_resolution_depth_fuses_to_the_same_surface(tmp_path):
     """Depth at half the camera's resolution (rendered there, as MVS at a working resolution would write it)
     fuses with scaled intrinsics to the surface the full-resolution depth gives."""
@@ -578,6 +586,7 @@ def _with_normals_and_confidence(f: DepthFrame) -> DepthFrame:
     return replace(f, normal=n.astype(np.float16), confidence=conf)
 
 
+@pytest.mark.slow
 def test_tsdf_in_chunks_equals_one_grid(frames):
     """A grid budget smaller than the scene: the volume is fused chunk by chunk (each with a block layer around
     it) and stitched, face for face the single grid's mesh, with no seam."""
@@ -706,6 +715,7 @@ def test_observed_distance_matches_a_tree_of_all_observed_points(frames):
     assert np.isinf(d).any() and np.isfinite(d).any()
 
 
+@pytest.mark.slow
 def test_fusion_stage_keeps_only_the_depth_of_its_frames(frames, tmp_path):
     """``fuse_to_files`` replaces the entries of its frame list by depth-only frames once fused (the colour,
     confidence and normal maps freed before the cleaning); frames the caller holds elsewhere are untouched."""
@@ -737,6 +747,7 @@ def test_surface_report_counts_edges_and_samples_the_area():
     assert abs(np.mean(np.isclose(np.abs(pts[:, 0]), 0.5)) - 16 / 28) < 0.01
 
 
+@pytest.mark.slow
 def test_streamed_frames_fuse_to_the_same_mesh_holding_one_frame(blob_fusion):
     """Frames beyond the budget's share are read one at a time (``FrameStore``): the same mesh, and the
     fusion's traced allocations no longer hold every frame at once."""
@@ -768,6 +779,7 @@ def test_streamed_frames_fuse_to_the_same_mesh_holding_one_frame(blob_fusion):
     assert peak_store < peak_held - 0.6 * frame_bytes, (peak_store, peak_held, frame_bytes)
 
 
+@pytest.mark.slow
 def test_fusion_memory_budget_coarsens_the_voxel_and_keeps_the_surface(frames, gt, blob_fusion, caplog):
     """A budget too small for the mesh at the footprint's voxel: the voxel is coarsened with a warning so that
     the estimated mesh fits its share, the face count follows, and the surface stays within tolerance."""
@@ -799,6 +811,7 @@ def test_fusion_memory_budget_coarsens_the_voxel_and_keeps_the_surface(frames, g
     assert m.chamfer <= 0.002 * m.diagonal and m.fscore >= 0.98, m
 
 
+@pytest.mark.slow
 def test_streamed_frames_are_prepared_once_and_fuse_in_chunks_to_the_one_grid_mesh(blob_fusion, tmp_path, monkeypatch):
     """Streamed frames with normals and confidence, fused in chunks: each depth map is read and prepared once
     (kept on disk in the given folder, integrated from there by every chunk it reaches), the mesh is face for
@@ -916,6 +929,7 @@ def test_planar_normals_kernel_matches_numpy_reference():
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.slow
 def test_coarser_depth_maps_weigh_less_and_leave_the_voxel(frames, gt, monkeypatch):
     """Depth maps a depth stage left at half their working resolution (``DEPTH_LEVEL`` 1) weigh a quarter in TSDF
     fusion and do not coarsen the voxel: with every other view's depth at half

@@ -129,6 +129,7 @@ def _open_length(m):
     return float(np.linalg.norm(m.vertices[e[:, 0]] - m.vertices[e[:, 1]], axis=1).sum())
 
 
+@pytest.mark.slow
 def test_reconstruct_reports_the_filling_and_writes_the_closed_companion_for_an_object(blob_small, tmp_path):
     import json
 

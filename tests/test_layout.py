@@ -51,6 +51,7 @@ def test_import_photorecon_loads_no_stage():
     assert out.stdout.strip() == "[]", out.stdout
 
 
+@pytest.mark.slow
 def test_every_module_imports_alone():
     """Each module imported first in a fresh process: an import cycle between modules fails here."""
     names = [m.name for m in pkgutil.walk_packages(photorecon.__path__, "photorecon.")

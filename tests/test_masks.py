@@ -89,6 +89,7 @@ def _inside(mesh, box, tol):
     return np.all((v >= box[0] - tol) & (v <= box[1] + tol), axis=1)
 
 
+@pytest.mark.slow
 def test_fusion_excludes_masked_background(rgba, blob_small):
     gt = trimesh.load(blob_small / "gt_mesh.ply", process=False)
     tol = 0.02 * np.linalg.norm(gt.bounds[1] - gt.bounds[0])
@@ -100,6 +101,7 @@ def test_fusion_excludes_masked_background(rgba, blob_small):
     assert (~_inside(unmasked, gt.bounds, tol)).sum() > 1000
 
 
+@pytest.mark.slow
 def test_reconstruct_given_poses_writes_alpha_masks(rgba, blob_small, tmp_path):
     out = tmp_path / "out"
     assert main(["-q", "reconstruct", str(rgba / "images"), "-o", str(out), "--poses", str(blob_small / "transforms.json"),
@@ -189,6 +191,7 @@ def test_user_mask_folder_reaches_the_dataset(backdrop):
         assert plain.mask(v) is None  # no DATASET/masks, RGB images: no mask
 
 
+@pytest.mark.slow
 def test_fuse_with_masks_drops_the_backdrop(backdrop, tmp_path):
     gt = trimesh.load(backdrop / "synth" / "gt_mesh.ply", process=False)
     tol = 0.02 * np.linalg.norm(gt.bounds[1] - gt.bounds[0])
@@ -202,6 +205,7 @@ def test_fuse_with_masks_drops_the_backdrop(backdrop, tmp_path):
     assert (~_inside(unmasked, gt.bounds, tol)).sum() > 1000
 
 
+@pytest.mark.slow
 def test_reconstruct_carries_user_masks_and_reruns_when_they_change(backdrop, tmp_path):
     data, out = backdrop / "data", tmp_path / "out"
     masks = tmp_path / "usermasks"
@@ -231,6 +235,7 @@ def test_reconstruct_carries_user_masks_and_reruns_when_they_change(backdrop, tm
     assert not (cv2.imread(str(out / "masks" / f"{name}.png"), cv2.IMREAD_GRAYSCALE)[:, : m.shape[1] // 2]).any()
 
 
+@pytest.mark.slow
 def test_sfm_masks_reach_feature_extraction(tmp_path):
     """sfm --masks: COLMAP extracts no keypoint where the mask is 0, and OUT/masks holds the undistorted masks;
     the control extraction without masks finds keypoints on the textured backdrop."""

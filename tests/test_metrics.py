@@ -64,6 +64,7 @@ def test_half_missing_result_is_incomplete_but_accurate(sphere, reference):
     assert m.fscore == pytest.approx(2 * m.precision * m.recall / (m.precision + m.recall))
 
 
+@pytest.mark.slow
 def test_crop_to_reference_ignores_background_only(sphere, reference):
     floor = trimesh.creation.box(extents=[10, 10, 0.1])  # 100 m^2 of background under a 12.6 m^2 object
     floor.apply_translation([0, 0, -3])

@@ -117,6 +117,7 @@ def test_wrong_models(tmp_path, blob_small):
     assert main(["-q", "depth", str(blob_small), "--model", str(tmp_path / "missing.onnx"), "-o", str(tmp_path / "o2")]) == 3
 
 
+@pytest.mark.slow
 def test_reconstruct_with_depth_model(oracle_dataset, tmp_path):
     import json
 

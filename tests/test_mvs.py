@@ -80,6 +80,7 @@ def test_mvs_skips_views_without_points(blob_small, tmp_path, caplog):
     assert rep["views"] >= len(ds.views) // 2
 
 
+@pytest.mark.slow
 def test_cli_mvs(blob_small, tmp_path):
     assert main(["-q", "mvs", str(blob_small), "-o", str(tmp_path / "d"), "--n-sources", "3", "--pm-levels", "1",
                  "--pm-iterations", "2", "--min-consistent", "1"]) == 0

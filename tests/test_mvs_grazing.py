@@ -38,6 +38,7 @@ def _filtered(res, cfg):
     return {n: np.where(consistency_count(r, res, cfg)[0] >= cfg.min_consistent, r.depth, 0) for n, r in res.items()}
 
 
+@pytest.mark.slow
 def test_plane_test_keeps_grazing_ground_on_the_plane(grazing_raw):
     ds, data, res = grazing_raw
     scores = {}

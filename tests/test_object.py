@@ -107,6 +107,7 @@ def test_every_command_help_renders_and_offers_scene(capsys):
         assert e.value.code == 0 and "--scene {auto,object,open}" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_fuse_command_with_object_leaves_the_object(tmp_path):
     """``photorecon fuse DATA -o OUT --object`` on a rendered object on a table: OUT/mesh.ply has no table."""
     from photorecon.cli import main

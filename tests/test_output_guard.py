@@ -95,7 +95,8 @@ def test_every_command_refuses_what_it_did_not_write(scene, tmp_path, capsys, cm
         assert tree_hash(tmp_path) == before
 
 
-@pytest.mark.parametrize("cmd", ["fuse", "texture", "synth", "convert"])
+@pytest.mark.parametrize("cmd", [pytest.param("fuse", marks=pytest.mark.slow),
+                                 pytest.param("texture", marks=pytest.mark.slow), "synth", "convert"])
 def test_overwrite_adds_next_to_a_users_files_and_keeps_them(scene, tmp_path, cmd):
     """--overwrite on a user's folder (also one inside a result): the command's files are added, the user's
     stay byte for byte; a re-run then replaces only its own files."""
@@ -149,6 +150,7 @@ def test_convert_onto_its_input_is_refused_and_to_a_new_file_is_lossless(scene, 
     assert tree_hash(ds) == before
 
 
+@pytest.mark.slow
 def test_mvs_never_replaces_depth_maps_it_did_not_write(scene, tmp_path, capsys):
     """A dataset whose depth/ holds rendered ground truth: ``mvs DATASET`` refuses (even with --overwrite),
     saying -o; with -o a new folder in the dataset it writes there, says so, and the truth is unchanged."""
@@ -165,6 +167,7 @@ def test_mvs_never_replaces_depth_maps_it_did_not_write(scene, tmp_path, capsys)
     assert main(["-q", "mvs", str(ds), "-o", str(out), "--max-size", "80", "--n-sources", "3"]) == 0  # its own
 
 
+@pytest.mark.slow
 def test_a_stale_lock_taken_over_is_listed_in_the_report(scene, tmp_path):
     ds = scene[0]
     out = tmp_path / "out"

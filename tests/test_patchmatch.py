@@ -324,6 +324,7 @@ def test_pruned_pixels_are_those_far_from_any_matched_surface():
     assert np.array_equal(pruned_active(depth, cost, 1.0, level_view(view, 1)), coarse)  # same resolution
 
 
+@pytest.mark.slow
 def test_pruning_skips_the_background_and_keeps_the_object(knot_small, tmp_path, monkeypatch):
     """A plain background (no masks) matches nowhere: with --pm-prune-cost the finer levels leave it out (fewer
     pixels computed), and the object's depths are as close to the truth as without."""
@@ -360,6 +361,7 @@ def knot_small(tmp_path_factory):
     return synth_scene(tmp_path_factory, "knot_small", scene="knot", views=16, width=200, height=150, points=1500)
 
 
+@pytest.mark.slow
 def test_filter_checks_views_beyond_the_matching_sources(knot_small, tmp_path):
     """Self-occlusion: a tube hidden from some of a view's 3 matching sources is confirmed by the other views
     that see it when the filter checks more views (filter_sources), at the same accuracy against the truth;
@@ -382,6 +384,7 @@ def test_filter_checks_views_beyond_the_matching_sources(knot_small, tmp_path):
         assert (conf[d > 0] >= 0.5 - 1e-6).all()  # min_consistent 2: at least two views agree
 
 
+@pytest.mark.slow
 def test_no_depth_on_a_textureless_background(knot_small, tmp_path):
     """Without masks and without a confidence threshold, the plain background's windows have no texture: with
     --min-texture no depth is kept there, so the filter cannot let chance agreements through."""

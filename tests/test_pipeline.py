@@ -82,6 +82,7 @@ def test_interrupted_run_resumes(sphere30, tmp_path, monkeypatch, capsys):
     assert not rep["stages"]["fusion"].get("cached") and (out / "mesh.ply").is_file()
 
 
+@pytest.mark.slow
 def test_given_poses_and_rendered_depth(blob_small, tmp_path):
     out = tmp_path / "out"
     assert main(["-q", "reconstruct", str(blob_small / "images"), "-o", str(out),
@@ -93,6 +94,7 @@ def test_given_poses_and_rendered_depth(blob_small, tmp_path):
     assert rep["poses"]["source"].endswith("transforms.json")
 
 
+@pytest.mark.slow
 def test_failure_classes_and_exit_codes(tmp_path, blob_small, capsys):
     import cv2
 
@@ -148,6 +150,7 @@ def test_transforms_paths_are_confined(blob_small, tmp_path, capsys):
     assert main(["-q", "convert", str(bad / "transforms.json"), str(tmp_path / "c")]) == 3
 
 
+@pytest.mark.slow
 def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path):
     """Each stage is keyed on its settings and input files; a stage that runs again runs the later
     ones too, and only those."""
@@ -190,6 +193,7 @@ def test_stages_rerun_when_their_inputs_or_settings_change(blob_small, tmp_path)
                                                                            "model"]
 
 
+@pytest.mark.slow
 def test_reconstruct_returns_a_typed_result(blob_small, tmp_path):
     """The Python API returns a dataclass (fields typed and documented) that is report.json."""
     from photorecon.pipeline import ReconstructConfig, ReconstructResult, StageConfigs, reconstruct

@@ -63,6 +63,7 @@ def test_poisson_mesher_matches_ground_truth(sphere_small):
     assert mesh.visual.kind == "vertex" and np.asarray(mesh.visual.vertex_colors)[:, :3].std() > 5  # colours
 
 
+@pytest.mark.slow
 def test_watertight_closes_the_unseen_bottom_and_says_how_much_is_invented(ring_small):
     ds = Dataset.open(ring_small)
     frames = load_frames(ds, FusionConfig())
@@ -159,6 +160,7 @@ def test_boundary_edges_counts_hole_rims():
     assert boundary_edges(trimesh.Trimesh(s.vertices, s.faces[1:], process=False)) == 3
 
 
+@pytest.mark.slow
 def test_bunny_demo_article_vs_fused_vs_watertight(tmp_path):
     """``photorecon demo --scene bunny`` at a tiny size (12 ring views, 160x120): the article's concatenated grids
     are doubled shells almost everywhere, the fused surfaces are single; the watertight one is closed, closes
@@ -220,6 +222,7 @@ def test_watertight_patch_colour_follows_its_rim():
     assert np.ptp(col[:, 0]) > 0.6
 
 
+@pytest.mark.slow
 def test_poisson_surface_gives_the_same_mesh_every_time():
     """The same oriented points give the same Poisson surface, vertex for vertex (Open3D's Poisson on more than
     one thread gives a different mesh each run: here 3 different ones in 3 runs of a noisy sphere)."""

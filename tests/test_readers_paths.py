@@ -288,6 +288,7 @@ def test_colmap_text_names_are_the_rest_of_the_line(tmp_path, name):
     assert [v.image_file for v in got[1:]] == ["v1.png", "v2.png"]
 
 
+@pytest.mark.slow
 def test_photos_named_with_spaces_reconstruct_from_given_cameras(blob_small, tmp_path, capsys):
     """Photos named " leading space.png" and "double  space.png": read, undistorted and fused like any other."""
     images, depth, model = tmp_path / "images", tmp_path / "depth", tmp_path / "model"
@@ -479,6 +480,7 @@ def test_an_image_file_given_as_the_folder_says_what_to_pass(blob_small, tmp_pat
         assert f"{img}: is an image file, not a folder; pass the folder that holds the photos ({img.parent})" in line
 
 
+@pytest.mark.slow
 def test_an_empty_video_is_photorecons_one_line(tmp_path):
     (tmp_path / "v.mp4").write_bytes(b"")
     (tmp_path / "junk.mp4").write_bytes(np.random.default_rng(0).bytes(3000))

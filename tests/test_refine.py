@@ -180,6 +180,7 @@ def test_facing_repeats_visibility_on_the_pairs_it_found_unoccluded():
     assert not cos3.any()
 
 
+@pytest.mark.slow
 def test_reconstruct_refine_option(blob_small, tmp_path):
     out = tmp_path / "out"
     assert main(["-q", "reconstruct", str(blob_small / "images"), "-o", str(out), "--poses",

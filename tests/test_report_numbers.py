@@ -282,6 +282,7 @@ def test_preview_is_cut_into_its_views(tmp_path):
     assert page.count('alt="preview.png, view ') == 4 and '<div class="tiles preview">' in page
 
 
+@pytest.mark.browser
 def test_report_fits_the_window_in_a_browser(tmp_path):
     """In headless Chromium at phone, laptop and wide widths nothing on report.html is wider than the window
     (no sideways scrolling); the preview's four 360-pixel views stand in one row on a wide window and one per

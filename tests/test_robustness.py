@@ -72,6 +72,7 @@ def test_user_folder_with_images_and_overwrite_is_refused(tmp_path, blob_small, 
     assert tree_hash(proj) == before
 
 
+@pytest.mark.slow
 def test_overwrite_never_replaces_a_file_photorecon_did_not_write(ds, tmp_path, capsys):
     """--overwrite on a folder photorecon did not write: refused when a path photorecon would write is there
     (named in the message), allowed next to unrelated files, which stay as they were."""
@@ -119,6 +120,7 @@ def test_eval_refuses_to_write_over_its_inputs(ds, capsys):
 
 
 # --- one run per output folder; a stage is complete only with all its outputs --------------------------------------
+@pytest.mark.slow
 def test_second_run_on_a_locked_output_names_the_holder_and_exits_8(tmp_path):
     """Two runs on one output: the second stops at once, naming the process that holds the folder, and
     writes nothing; the first's lock is untouched."""
@@ -138,6 +140,7 @@ def test_second_run_on_a_locked_output_names_the_holder_and_exits_8(tmp_path):
     assert not (out / LOCK).exists()  # released
 
 
+@pytest.mark.slow
 def test_two_concurrent_runs_on_one_output_the_second_exits_8(tmp_path, blob_small):
     """A run started on an output while another writes it (here sfm while synth renders): it exits 8 naming
     the first's process id and writes nothing; the first completes its output and removes the lock."""
@@ -208,6 +211,7 @@ def test_lock_without_flock_decides_by_process_id(tmp_path, monkeypatch):
         assert not (out / output.LOCK).exists()
 
 
+@pytest.mark.slow
 def test_lock_is_released_on_error_and_interrupt(tmp_path):
     from photorecon.io.output import LOCK, output_folder
 
@@ -580,6 +584,7 @@ def test_full_disk_before_sfm_features_is_one_line_and_exit_8(blob_small, small_
     assert not (out / "colmap" / "features.db").exists() and _hidden_files(out) == []
 
 
+@pytest.mark.slow
 def test_space_check_of_upsampled_sift_covers_the_copies_and_the_features(blob_small, tmp_path, monkeypatch):
     """The second SIFT pass (small photos, 2x upsampled copies) writes the copies and about twice the features:
     the space checked before COLMAP's writer starts (it aborts the process on a full disk) covers both."""
@@ -862,6 +867,7 @@ def test_eval_of_a_mesh_with_nan_vertices_names_them_and_exits_3(tmp_path, capsy
     assert f"4 of {len(v)} vertices have NaN or infinite coordinates (the first: index 17)" in line
 
 
+@pytest.mark.slow
 def test_too_little_confirmed_depth_fails_loudly_with_its_own_message(blob_small, tmp_path, capsys):
     """A depth stage that confirms depth in a small fraction of the pixels makes a fragment of a mesh: exit 6 with
     a line saying how little, instead of a 'successful' run; --method sweep (a rough preview) says so."""

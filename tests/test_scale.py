@@ -290,6 +290,7 @@ def _plane_depth(view: View) -> np.ndarray:
     return t.reshape(intr.height, intr.width).astype(np.float32)
 
 
+@pytest.mark.slow
 def test_reconstruct_with_markers_writes_metres(tmp_path):
     """--poses (arbitrary units) + --depth folder + --marker-size: cameras, depth and mesh come out in metres,
     report.json and transforms.json say so."""

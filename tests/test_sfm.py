@@ -164,6 +164,7 @@ def _noise_image(path, seed, size=(240, 320)):
     cv2.imwrite(str(path), cv2.resize(small, (size[1], size[0]), interpolation=cv2.INTER_CUBIC))
 
 
+@pytest.mark.slow
 def test_bad_image_folders(tmp_path, blob_small):
     empty = tmp_path / "empty"
     empty.mkdir()

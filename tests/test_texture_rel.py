@@ -44,6 +44,7 @@ def dark_knot(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_relative_texture_keeps_a_dark_object_and_drops_a_plain_background(dark_knot, tmp_path):
     ds = Dataset.open(dark_knot)
     assert ds.mask(ds.views[0]) is None

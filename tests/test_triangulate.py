@@ -64,6 +64,7 @@ def _check_result(root, given: SparseModel, out: SparseModel):
     assert np.median(res) < 0.3, np.median(res)
 
 
+@pytest.mark.slow
 def test_triangulate_given_keeps_cameras_and_lands_on_surface(ring16, tmp_path):
     given = _bare(read_model(ring16))
     before = tree_hash(ring16)
@@ -75,6 +76,7 @@ def test_triangulate_given_keeps_cameras_and_lands_on_surface(ring16, tmp_path):
     assert (tmp_path / "work" / "database.db").is_file()
 
 
+@pytest.mark.slow
 def test_triangulate_given_grey_alpha_images_and_overlap_pairs(ring16, tmp_path):
     """Grey + alpha PNGs (alpha 0 = no data), matched only on overlapping pairs."""
     images = tmp_path / "grey"

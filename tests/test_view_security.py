@@ -88,6 +88,7 @@ def test_foreign_host_is_refused(server):
     assert handshake(port, f"evil.example:{port}", None, websocket=False) == 403  # the page itself too
 
 
+@pytest.mark.slow
 def test_own_origin_gets_the_scene(server):
     """The viewer's page at http://127.0.0.1:PORT or http://localhost:PORT connects and receives the scene;
     the page itself is served."""

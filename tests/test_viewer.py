@@ -183,6 +183,7 @@ def test_viewer_payload_holds_the_mesh_and_frusta(result):
                                           atol=1e-3)
 
 
+@pytest.mark.browser
 def test_report_html_renders_the_mesh_in_a_headless_browser(result, tmp_path):
     """report.html from file:// in headless Chromium: the WebGL view draws the mesh where a ray-cast of the
     same viewpoint puts it (silhouette IoU), shaded (many distinct colours); the report's other parts stay."""
@@ -222,6 +223,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.browser
 def test_view_serves_the_result_on_localhost(result, tmp_path):
     """``photorecon view OUT`` serves on 127.0.0.1 and prints the URL; headless Chromium shows the mesh
     (the centre of the page is no longer blank); Ctrl-C stops it with exit code 130."""

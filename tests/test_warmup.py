@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from photorecon.warmup import entry_kernels, kernels, warm_up
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,6 +28,7 @@ def test_kernel_listing_finds_entries_and_helpers():
     assert not uncached, f"@njit without cache=True: {uncached}"
 
 
+@pytest.mark.cold
 def test_warmup_reaches_every_kernel_and_a_new_process_compiles_none():
     """In this process every kernel ends up compiled (or loaded) by ``warm_up``: a kernel added to the package
     and not run by it fails here. A new process then finds all of them in numba's cache."""
