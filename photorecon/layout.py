@@ -32,7 +32,7 @@ from pathlib import Path
 WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
                  "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "mesh_closed.ply", "mesh_closed.obj",
                  "model.glb", "model.obj", "model.mtl", "model.png",
-                 "mesh_closed.glb", "preview.png", "preview_mesh.ply", "report.json",
+                 "mesh_closed.glb", "preview.png", "preview_mesh.ply", "first_look", "report.json",
                  "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
 
 COMMAND_WRITES: dict[str, tuple[str, ...] | None] = {
@@ -113,6 +113,12 @@ class Layout:
     def work(self) -> Path:
         """Intermediate task outputs (depth and fusion tasks), kept across an interruption for a re-run."""
         return self.root / ".work"
+
+    @property
+    def first_look(self) -> Path:
+        """A large capture's first look while its depth maps are computed: mesh.ply and preview.png fused from the
+        coarse depth maps; removed when the run's result is complete."""
+        return self.root / "first_look"
 
     @property
     def textured(self) -> Path:

@@ -12,6 +12,8 @@ OUT layout::
                            side closed)
     OUT/preview.png        the mesh from four viewpoints with the camera frusta
     OUT/preview_mesh.ply   the mesh decimated to <= 200k faces: report.html's 3D view
+    OUT/first_look/        while a large capture's depth maps are computed: mesh.ply + preview.png fused from
+                           the coarse depth maps; removed once the result is complete
     OUT/model.glb          the mesh simplified to --model-faces and textured from the photos (atlas at most
                            --max-atlas a side, embedded as JPEG); with --formats obj also model.obj + model.mtl +
                            model.png; --texture off: none
@@ -229,6 +231,31 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
     render_preview(small, layout.preview, cameras=ds.views)
 
 
+def first_look_stage(maps: dict, ds, layout: Layout, fusion_cfg: FusionConfig) -> None:
+    """A first look while the depth stage runs (``run_mvs``'s ``on_coarse``): the coarse depth maps of every
+    view fused (``fusion.first_look``) -> ``layout.first_look``/mesh.ply and preview.png. Nothing is written when
+    the coarse maps hold no surface; the run goes on either way, and removes the folder once its result is
+    complete."""
+    import time
+
+    from .errors import EmptyMeshError
+    from .fusion.first_look import first_look_mesh
+    from .mesh import export
+    from .report.preview import render_preview
+
+    t0 = time.process_time()
+    try:
+        mesh = first_look_mesh(maps, fusion_cfg, cameras=ds.views)
+    except (NoDepthError, EmptyMeshError) as exc:
+        log.info("first look: none (%s)", exc)
+        return
+    with atomic_dir(layout.first_look) as tmp:
+        export(mesh, tmp / "mesh.ply")
+        render_preview(decimate_for_viewer(mesh, VIEWER_MAX_FACES), tmp / "preview.png", cameras=ds.views)
+    log.info("first look: %s (%d faces from the coarse depth maps of %d views, %.0f CPU s); the full result "
+             "replaces it", layout.first_look / "preview.png", len(mesh.faces), len(maps), time.process_time() - t0)
+
+
 def reconstruct(images: str | Path, out: str | Path, cfgs: StageConfigs | None = None, force: bool = False,
                 overwrite: bool = False, quality: str | None = None) -> ReconstructResult:
     """Run the whole pipeline; returns what it did (also written to OUT/report.json). ``quality``: the settings of
@@ -342,7 +369,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                     note = getattr(depth_method(cfgs.mvs.method), "NOTE", None)
                     if note:
                         log.warning(note)
-                    rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth")
+                    rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth",
+                                  on_coarse=lambda maps: first_look_stage(maps, ds, layout, cfgs.fusion))
                     n_depth = rep["depth_views"]["chosen"]  # the views that were to get a depth map (--depth-views)
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "depth_views": rep["depth_views"],
@@ -421,6 +449,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         stages.restore()
         raise
     stages.discard_kept()  # the run is complete: the result it replaced goes
+    shutil.rmtree(layout.first_look, ignore_errors=True)  # the full result replaces the first look
     return report
 
 
