@@ -59,6 +59,7 @@ def test_first_look_needs_two_maps_to_agree():
         first_look_mesh(maps)
 
 
+@pytest.mark.slow
 def test_first_look_of_patchmatch_coarse_maps_lies_on_the_surface(tmp_path):
     """The coarse maps PatchMatch's first round gives for 30 views of the blob at 256x192 (64x48 maps), handed to
     ``run_mvs``'s ``on_coarse`` before any full depth map: their first look lies on the surface and covers it

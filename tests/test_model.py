@@ -36,6 +36,7 @@ def _load(path):
     return m
 
 
+@pytest.mark.slow
 def test_default_reconstruct_writes_a_simplified_textured_model(model_run, blob_small):
     """model.glb loads with its texture (at most 8192 a side), has at most the face budget, lies on the true surface
     (95% of its points within 0.5% of the blob's diagonal of 3.4 scene units, every point within 1.5%), and
@@ -75,6 +76,7 @@ def _png(path):
     return Image.open(path).convert("RGB")
 
 
+@pytest.mark.slow
 def test_model_colours_match_the_photos_from_the_input_views(model_run, blob_small):
     """Rendered unlit from input views, the model shows the photos' colours: on the pixels both cover, a mean
     absolute error under 10 (of 255) per channel and a PSNR of at least 25 dB in every view checked."""
@@ -93,6 +95,7 @@ def test_model_colours_match_the_photos_from_the_input_views(model_run, blob_sma
         assert err.mean() < 10 and psnr >= 25, (view.name, err.mean(), psnr)  # 5.7-6.9 and 27.5-29.6 dB
 
 
+@pytest.mark.slow
 def test_cached_rerun_keeps_the_model_and_texture_off_removes_it(model_run, blob_small, tmp_path):
     """The same run again reuses every stage and keeps model.glb as it was; a texture setting reruns the model
     stage alone; --texture off writes no model (and takes away an earlier run's); --texture alone: on."""

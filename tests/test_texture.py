@@ -32,6 +32,7 @@ def textured(blob_small):
     return ds, mesh, tex
 
 
+@pytest.mark.slow
 def test_textured_mesh_beats_vertex_colours_on_held_out_views(textured, blob_small):
     """Rendered (unlit) from views that texturing never used, the textured mesh matches the true images
     better than the same mesh with vertex colours: at least 2 dB more PSNR on the object's pixels on average
@@ -120,6 +121,7 @@ def test_exports_reload_with_their_texture(textured, tmp_path):
     assert "map_Kd texture.png" in (out / "mesh.mtl").read_text()
 
 
+@pytest.mark.slow
 def test_texture_command_on_a_reconstruct_output(blob_small, tmp_path, caplog):
     """photorecon texture textures a reconstruct output's mesh into OUT/textured/ (or -o DIR), which photorecon
     view shows with OUT's cameras; reconstruct's former texture flags (--texture alone, --atlas-size,
