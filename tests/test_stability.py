@@ -66,7 +66,7 @@ def _mesh(parts):
 
 
 @pytest.mark.xfail(strict=True, reason="a known tipping point: debris is measured against the largest piece, which a "
-                   "one-voxel bridge between two big halves doubles (docs/benchmarks.md, Stability)")
+                   "one-voxel bridge between two big halves doubles (tools/bench_stability.py measures it)")
 def test_debris_and_main_surface_do_not_hinge_on_a_thin_bridge_between_two_big_pieces():
     """The object's surface fused as two big halves, and small pieces along it of 0.3% of a half's area.
     Whether a one-voxel bridge joins the halves (a 1-ulp change of the fused grid can make or break one)
