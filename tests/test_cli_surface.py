@@ -150,7 +150,7 @@ def test_a_former_settings_file_key_still_works_and_names_the_new_one(parser, ca
                                                                       where):
     import logging
 
-    from photorecon.cli.config import apply_settings_file
+    from photorecon.cli.settings import apply_settings_file
 
     f = tmp_path / "s.toml"
     f.write_text(text)
@@ -161,6 +161,62 @@ def test_a_former_settings_file_key_still_works_and_names_the_new_one(parser, ca
     assert getattr(getattr(cfgs, where[0]), where[1]) == where[2]
     assert [r.getMessage() for r in caplog.records] == [
         f"--config {f}: {old} is now {new} (the former name still works, for now)"]
+
+
+@pytest.mark.parametrize("command, old, new", [
+    ("reconstruct", "--object", "--scene object"),
+    ("reconstruct", "--clean.object", "--clean.scene object"),
+    ("fuse", "--object", "--scene object"),
+])
+def test_the_former_object_flag_is_scene_object(parser, caplog, command, old, new):
+    import logging
+
+    from photorecon.cli.config import config_from_args
+    from photorecon.mesh import CleanConfig
+
+    positional = ["I", "-o", "O"] if command == "reconstruct" else ["D", "-o", "O"]
+
+    def clean_cfg(*flags):
+        return config_from_args(CleanConfig, parser.parse_args([command, *positional, *flags]))
+
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        by_old = clean_cfg(old)
+    assert [r.getMessage() for r in caplog.records] == [f"{old} is now {new} (the former name still works, for now)"]
+    assert by_old.scene == "object" != CleanConfig().scene
+    caplog.clear()
+    assert clean_cfg(*new.split()) == by_old and not caplog.records  # the new name: no warning
+    # as the boolean did, it wins over a --scene given too, wherever that stands
+    assert clean_cfg(old, "--scene", "open").scene == clean_cfg("--scene", "open", old).scene == "object"
+    with caplog.at_level(logging.WARNING, logger="photorecon"):  # --no-object: the default, nothing to set
+        assert clean_cfg("--scene", "open", "--no-object").scene == "open"
+    assert caplog.records[-1].getMessage() == ("--no-object is the default now and changes nothing "
+                                               "(the setting is --scene)")
+    full = parser.command_parser(command).format_help(full=True)
+    assert f"{old} " not in full.replace(",", " ") and "--scene {auto,object,open}" in full
+
+
+@pytest.mark.parametrize("text, scene, message", [
+    ("object = true\n", "object", 'object = true is now scene = "object" (the former name still works, for now)'),
+    ("[clean]\nobject = true\n", "object",
+     '[clean] object = true is now [clean] scene = "object" (the former name still works, for now)'),
+    ("object = false\n", "auto", "object = false is the default now and changes nothing (the setting is scene)"),
+])
+def test_the_former_object_settings_file_key_is_scene_object(parser, caplog, tmp_path, text, scene, message):
+    import logging
+
+    from photorecon.cli.settings import apply_settings_file
+
+    f = tmp_path / "s.toml"
+    f.write_text(text)
+    args = parser.parse_args(["reconstruct", "I", "-o", "O"])
+    with caplog.at_level(logging.WARNING, logger="photorecon"):
+        apply_settings_file(parser.command_parser("reconstruct"), args, f)
+        cfgs = _configs_of(args)
+    assert cfgs.clean.scene == scene
+    assert [r.getMessage() for r in caplog.records] == [f"--config {f}: {message}"]
+    f.write_text("object = 'yes'\n")
+    with pytest.raises(BadArgumentError, match="object: expected true or false, got 'yes'"):
+        apply_settings_file(parser.command_parser("reconstruct"), parser.parse_args(["reconstruct", "I", "-o", "O"]), f)
 
 
 def _configs_of(args):
@@ -202,7 +258,7 @@ def test_the_tuning_settings_are_the_marked_ones():
 
 
 def test_tuning_settings_are_left_out_of_help_all_and_still_set(parser, tmp_path):
-    from photorecon.cli.config import apply_settings_file
+    from photorecon.cli.settings import apply_settings_file
 
     sp = parser.command_parser("reconstruct")
     full = sp.format_help(full=True)

@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from photorecon import cli
-from photorecon.cli.config import Ranged, apply_settings_file, config_from_args, validate
+from photorecon.cli.config import Ranged, config_from_args, validate
+from photorecon.cli.settings import apply_settings_file
 from photorecon.errors import BadArgumentError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -138,7 +138,7 @@ def test_reconstruct_reports_the_filling_and_writes_the_closed_companion_for_an_
     args = ["-q", "reconstruct", str(blob_small / "images"), "--poses", str(blob_small / "transforms.json"),
             "--depth", str(blob_small / "depth")]
     out = tmp_path / "object"
-    assert main(args + ["-o", str(out), "--object"]) == 0
+    assert main(args + ["-o", str(out), "--scene", "object"]) == 0
     rep = json.loads((out / "report.json").read_text())["mesh"]
     m, vf, ff = _ply_filled(out / "mesh.ply")
     assert rep["boundary_length"] == pytest.approx(_open_length(m), rel=1e-6, abs=1e-9)
@@ -152,7 +152,7 @@ def test_reconstruct_reports_the_filling_and_writes_the_closed_companion_for_an_
     # the closed companion keeps the open mesh's surface: its vertices come first, unchanged
     assert np.allclose(np.asarray(c.vertices)[:len(m.vertices)], np.asarray(m.vertices), atol=1e-6)
     # the same photos as an open scene (--closed off): no companion, and none left from the run before
-    assert main(args + ["-o", str(out), "--object", "--closed", "off"]) == 0
+    assert main(args + ["-o", str(out), "--scene", "object", "--closed", "off"]) == 0
     assert json.loads((out / "report.json").read_text())["mesh"]["closed"] is None
     assert not (out / "mesh_closed.ply").exists() and not (out / "mesh_closed.glb").exists()
 

@@ -1,4 +1,4 @@
-"""Object capture (``--object``): the support plane an object stands on is found and removed with everything
+"""Object capture (``--scene object``): the support plane an object stands on is found and removed with everything
 below it, the object kept; scenes without such a plane are left alone. Rendered ground-truth depth, TSDF."""
 import numpy as np
 import pytest
@@ -55,7 +55,7 @@ def test_object_removes_the_support_plane_keeps_the_object(on_table, ring):
     kept = clean(fused, CleanConfig(scene="open"), cameras=ring)
     assert _near_plane_area(kept, 1.5 * voxel) > 0.5  # the table is there with --scene open (about 1.9 of ~2.5 visible)
     # hole filling (on by default) would close the cut-open bottoms with flat patches the truth lacks
-    out = clean(fused, CleanConfig(object=True, fill_holes_voxels=0), cameras=ring)
+    out = clean(fused, CleanConfig(scene="object", fill_holes_voxels=0), cameras=ring)
     # the plane found: normal up, at the table's height
     n = np.array([float(x) for x in out.metadata["support_normal"].split(",")])
     assert n[2] > np.cos(np.radians(1.0)), n
@@ -73,7 +73,7 @@ def test_object_removes_the_support_plane_keeps_the_object(on_table, ring):
     assert len(seen) > 0.8 * len(gt)
     assert np.mean(distance_to(out, seen) < voxel) > 0.999
     assert out.metadata["support_removed_area"] > 0.5
-    filled = clean(fused, CleanConfig(object=True), cameras=ring)  # the defaults: the table goes as well
+    filled = clean(fused, CleanConfig(scene="object"), cameras=ring)  # the defaults: the table goes as well
     assert _near_plane_area(filled, 1.5 * voxel) == 0 and filled.metadata["support_cut"] == cut
 
 
@@ -83,7 +83,7 @@ def test_object_without_a_support_plane_removes_nothing(ring):
     fused = _fused(_object(), ring)
     # no filling: an object capture may fill other holes than an open scene (--fill-object-voxels)
     plain = clean(fused, CleanConfig(fill_holes_voxels=0), cameras=ring)
-    out = clean(fused, CleanConfig(object=True, fill_holes_voxels=0), cameras=ring)
+    out = clean(fused, CleanConfig(scene="object", fill_holes_voxels=0), cameras=ring)
     assert len(out.faces) == len(plain.faces) and "support_normal" not in out.metadata
 
 
@@ -91,7 +91,7 @@ def test_object_keeps_a_ground_seen_from_both_sides():
     """Cameras all around (a sphere rig sees the table from below too): no camera-side test passes."""
     views = make_views(SynthConfig(rig="sphere", views=12, width=160, height=120, radius=2.6))
     fused = _fused(trimesh.util.concatenate([_object(), _table()]), views)
-    out = clean(fused, CleanConfig(object=True), cameras=views)
+    out = clean(fused, CleanConfig(scene="object"), cameras=views)
     assert "support_normal" not in out.metadata
     assert _near_plane_area(out, 0.05) > 0.5
 
@@ -109,7 +109,7 @@ def test_every_command_help_renders_and_offers_scene(capsys):
 
 @pytest.mark.slow
 def test_fuse_command_with_object_leaves_the_object(tmp_path):
-    """``photorecon fuse DATA -o OUT --object`` on a rendered object on a table: OUT/mesh.ply has no table."""
+    """``photorecon fuse DATA -o OUT --scene object`` on a rendered object on a table: OUT/mesh.ply has no table."""
     from photorecon.cli import main
     from photorecon.mesh import load_mesh
     from photorecon.synthetic import synthesize
@@ -122,7 +122,7 @@ def test_fuse_command_with_object_leaves_the_object(tmp_path):
     gt = trimesh.load(tmp_path / "data" / "gt_mesh.ply", process=False)
     corners = gt.vertices[np.abs(gt.vertices[:, 0]) > 0.999 * np.abs(gt.vertices[:, 0]).max()]
     z_top = float(corners[:, 2].max())
-    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "out"), "--object", "-q"]) == 0
+    assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "out"), "--scene", "object", "-q"]) == 0
     assert load_mesh(tmp_path / "out" / "mesh.ply").triangles_center[:, 2].min() > z_top
     assert main(["fuse", str(tmp_path / "data"), "-o", str(tmp_path / "plain"), "--scene", "open", "-q"]) == 0
     plain = load_mesh(tmp_path / "plain" / "mesh.ply")
@@ -146,5 +146,5 @@ def test_object_keeps_a_flat_object_the_cameras_look_at(ring):
     """A flat object (a board, a painting) with the cameras looking at a point on it: it is not its own support."""
     board = trimesh.creation.box(extents=(1.2, 0.8, 0.02)).apply_translation((0, 0, -0.01))  # top at z = 0
     fused = _fused(board, ring)
-    out = clean(fused, CleanConfig(object=True), cameras=ring)
+    out = clean(fused, CleanConfig(scene="object"), cameras=ring)
     assert "support_normal" not in out.metadata and len(out.faces) == len(clean(fused, cameras=ring).faces)

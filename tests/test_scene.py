@@ -72,10 +72,9 @@ def test_scene_open_keeps_the_table_and_object_forces_removal(ring_fused, ring):
     assert kept.metadata["scene"] == {"mode": "open", "detected": "open", "reason": "--scene open",
                                       "support_removed": None}
     assert _near_plane_area(kept, 0.05) > 0.5 and "support_normal" not in kept.metadata
-    for cfg in (CleanConfig(scene="object"), CleanConfig(object=True)):  # --object: the same as --scene object
-        forced = clean(ring_fused, cfg, cameras=ring)
-        assert forced.metadata["scene"]["mode"] == "object" and forced.metadata["scene"]["detected"] == "object"
-        assert _near_plane_area(forced, 1.5 * voxel) == 0 and "support_normal" in forced.metadata
+    forced = clean(ring_fused, CleanConfig(scene="object"), cameras=ring)
+    assert forced.metadata["scene"]["mode"] == "object" and forced.metadata["scene"]["detected"] == "object"
+    assert _near_plane_area(forced, 1.5 * voxel) == 0 and "support_normal" in forced.metadata
 
 
 def test_partial_arc_of_120_degrees_is_an_object_capture(on_table):

@@ -130,8 +130,9 @@ def _group_table(group, prog: str, common: set[str]) -> list[str]:
         if getattr(action, "tuning_help", None):  # listed under "Tuning settings"
             continue
         if getattr(action, "renamed_to", None):  # a former name
+            note = f"; {action.renamed_note}" if getattr(action, "renamed_note", None) else ""
             rows.append(f"| {_cell(_invocation(action))} | former name of `{action.renamed_to}`: still works, with a "
-                        "warning naming the new one (also as a --config key) |")
+                        f"warning naming the new one (also as a --config key){note} |")
             continue
         help_ = _expand_help(action, prog)
         if action.choices and not action.option_strings:

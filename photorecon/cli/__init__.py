@@ -12,7 +12,8 @@ import sys
 import warnings
 
 from .. import __version__
-from .config import COMMANDS, Parser, apply_settings_file
+from .config import COMMANDS, Parser
+from .settings import apply_settings_file
 from ..errors import InternalError, PhotoreconError, from_os_error, is_out_of_memory, out_of_memory
 
 log = logging.getLogger("photorecon")

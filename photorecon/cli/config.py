@@ -64,6 +64,46 @@ class BooleanFlag(_Given, argparse.BooleanOptionalAction):
     """``--flag/--no-flag``, recorded as given."""
 
 
+class _RenamedToValue(argparse.Action):
+    """A former boolean flag that is now one value of another setting (``RENAMED_TO_VALUE``): ``--FLAG`` sets
+    that value, ``--no-FLAG`` changes nothing; either records ``(old, new, dest)`` in ``namespace._renamed`` for
+    ``config_from_args``'s one-line pointer. The value is kept in ``namespace._forced`` too: it wins over the
+    setting's own flag wherever that stands on the command line, as the boolean did."""
+
+    value = new_plain = new_prefixed = ""
+
+    def __init__(self, option_strings, dest, default=None, help=None):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        new = self.new_prefixed if option_string and "." in option_string else self.new_plain
+        if option_string and option_string.startswith("--no-"):
+            new = None  # the default: nothing to set
+        else:
+            force(namespace, self.dest, self.value)
+        renamed = getattr(namespace, "_renamed", None)
+        if renamed is None:
+            renamed = []
+            setattr(namespace, "_renamed", renamed)
+        renamed.append((option_string, new, self.dest))
+
+
+def force(namespace: argparse.Namespace, dest: str, value) -> None:
+    """Set ``dest`` to ``value`` whatever else the command line or a settings file says (a former boolean flag,
+    ``_RenamedToValue``), and record it as given."""
+    setattr(namespace, dest, value)
+    forced = getattr(namespace, "_forced", None)
+    if forced is None:
+        forced = {}
+        setattr(namespace, "_forced", forced)
+    forced[dest] = value
+    given_ = getattr(namespace, "_given", None)
+    if given_ is None:
+        given_ = set()
+        setattr(namespace, "_given", given_)
+    given_.add(dest)
+
+
 class _Renamed(_Store):
     """A flag's former name: stores like the flag and records ``(old, new, dest)`` in ``namespace._renamed`` so that
     ``config_from_args`` says, once and in one line, what it is called now."""
@@ -220,6 +260,13 @@ RENAMED: dict[str, dict[str, str]] = {
     "model": {"texture_faces": "model_faces", "atlas_size": "max_atlas"},
 }
 
+# Boolean flags that became one value of another setting, by config prefix: former flag -> (field, value). The
+# former flag (plain and prefixed, and its --config key) still works, hidden, with a one-line pointer: ``--object``
+# is ``--scene object`` and, as before, wins over a --scene given too; ``--no-object`` (the default) changes nothing.
+RENAMED_TO_VALUE: dict[str, dict[str, tuple[str, str]]] = {
+    "clean": {"object": ("scene", "object")},  # --object: --scene object
+}
+
 def is_tuning(prefix: str, f: dataclasses.Field) -> bool:
     """``f`` is a tuning setting: one only benchmarks change (their defaults were measured; docs/benchmarks.md),
     marked in its config with ``metadata={"tuning": True}``. Not listed by --help-all; docs/cli.md lists them
@@ -308,6 +355,19 @@ def _finish(parser, action: argparse.Action, prefix: str, f: dataclasses.Field, 
                                                  f"--{prefix}.{plain[2:]}", "new_prefixed": f"--{prefix}.{plain[2:]}"})
             alias = parser.add_argument(*aliases, **{**kw, "help": argparse.SUPPRESS}, action=cls)
             alias.renamed_to = cls.new_plain
+    for old, (name, value) in RENAMED_TO_VALUE.get(prefix, {}).items():
+        if name != f.name:
+            continue
+        old_plain = "--" + old.replace("_", "-")
+        forms = (old_plain, "--no-" + old_plain[2:], f"--{prefix}.{old_plain[2:]}", f"--no-{prefix}.{old_plain[2:]}")
+        aliases = [o for o in forms if o not in taken]
+        if aliases:
+            new_plain = plain if plain in action.option_strings else f"--{prefix}.{plain[2:]}"
+            cls = type("_RenamedToValue", (_RenamedToValue,), {
+                "value": value, "new_plain": f"{new_plain} {value}", "new_prefixed": f"--{prefix}.{plain[2:]} {value}"})
+            alias = parser.add_argument(*aliases, dest=action.dest, help=argparse.SUPPRESS, action=cls)
+            alias.renamed_to = cls.new_plain
+            alias.renamed_note = f"--no-{old_plain[2:]}: the default, changes nothing"
 
 
 def renamed_warnings(args: argparse.Namespace, prefix: str) -> None:
@@ -316,7 +376,10 @@ def renamed_warnings(args: argparse.Namespace, prefix: str) -> None:
 
     left = []
     for old, new, dest in getattr(args, "_renamed", None) or ():
-        if dest.startswith(prefix + "."):
+        if dest.startswith(prefix + ".") and new is None:  # --no-FLAG of a RENAMED_TO_VALUE flag
+            logging.getLogger("photorecon").warning("%s is the default now and changes nothing (the setting is --%s)",
+                                                    old, dest.split(".", 1)[1].replace("_", "-"))
+        elif dest.startswith(prefix + "."):
             logging.getLogger("photorecon").warning("%s is now %s (the former name still works, for now)", old, new)
         else:
             left.append((old, new, dest))
@@ -344,6 +407,12 @@ def _dest(prefix: str, name: str) -> str:
     return f"{prefix}.{name}"
 
 
+def _forced(args: argparse.Namespace, prefix: str) -> dict:
+    """The values of config ``prefix`` that a former boolean flag set (``force``), by field name."""
+    return {dest.split(".", 1)[1]: value for dest, value in (getattr(args, "_forced", None) or {}).items()
+            if dest.startswith(prefix + ".")}
+
+
 def config_from_args(config_cls, args: argparse.Namespace, **overrides):
     """The config ``config_cls`` from the values ``add_config_arguments`` parsed into ``args`` (plus
     ``overrides``), checked by ``validate`` (which a config's own ``__post_init__`` runs too)."""
@@ -352,95 +421,11 @@ def config_from_args(config_cls, args: argparse.Namespace, **overrides):
     values_in = vars(args)
     values = {f.name: values_in[_dest(prefix, f.name)] for f in dataclasses.fields(config_cls)
               if _dest(prefix, f.name) in values_in}
+    values.update({name: value for name, value in _forced(args, prefix).items() if name in values})
     values.update(overrides)
     cfg = config_cls(**values)
     validate(cfg)
     return cfg
-
-
-# --- presets and settings files -------------------------------------------------------------------------------
-
-
-def apply_preset(args: argparse.Namespace, values: typing.Mapping[str, object]) -> list[str]:
-    """Set each ``dest -> value`` of a preset that the user did not give (on the command line or in a settings
-    file); dests the command does not have are skipped. Returns the dests set."""
-    done = []
-    user = given(args)
-    for dest, value in values.items():
-        if dest in user or not hasattr(args, dest):
-            continue
-        setattr(args, dest, value)
-        done.append(dest)
-    return done
-
-
-def _file_value(action: argparse.Action, value, where: str):
-    """A settings file's ``value`` for ``action``, parsed and checked like the same text on the command line."""
-    from ..errors import BadArgumentError
-
-    if isinstance(action, (argparse.BooleanOptionalAction, argparse._StoreTrueAction, argparse._StoreFalseAction)):
-        if not isinstance(value, bool):
-            raise BadArgumentError(f"{where}: expected true or false, got {value!r}")
-        return value if not isinstance(action, argparse._StoreFalseAction) else not value
-    if isinstance(value, (dict, bool)) or (isinstance(value, list) and not getattr(action.type, "sep", False)
-                                           and action.type is not _parse_tuple and action.nargs is None):
-        raise BadArgumentError(f"{where}: expected a {'number' if isinstance(action.type, Ranged) else 'value'}, "
-                               f"got {value!r}")
-    text = ",".join(str(v) for v in value) if isinstance(value, list) else str(value)
-    try:
-        parsed = action.type(text) if callable(action.type) else text
-    except (argparse.ArgumentTypeError, ValueError, TypeError) as exc:
-        raise BadArgumentError(f"{where}: {exc}") from None
-    if action.choices is not None and parsed not in action.choices:
-        raise BadArgumentError(f"{where}: expected one of {', '.join(map(str, action.choices))}, got {value!r}")
-    return parsed
-
-
-def apply_settings_file(parser: argparse.ArgumentParser, args: argparse.Namespace, path) -> list[str]:
-    """Read a TOML settings file into ``args``: top-level keys are plain flag names (``quality = "preview"``,
-    ``max_size = 800``), a table per stage prefix holds that stage's settings (``[mvs]`` ``max_size = 800``,
-    ``[fusion]`` ``voxel_size = 0.002``). Flags given on the command line win. Every key is checked like its
-    flag; an unknown key is an error. Returns the dests set."""
-    import logging
-    import tomllib
-    from pathlib import Path
-
-    from ..errors import BadArgumentError, InputDataError
-
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputDataError(f"--config {path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputDataError(f"--config {path}: cannot read it ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise BadArgumentError(f"--config {path}: not valid TOML ({exc})") from None
-    items = []
-    for key, value in data.items():
-        if isinstance(value, dict):
-            items += [(f"--{key}.{k.replace('_', '-')}", f"[{key}] {k}", v) for k, v in value.items()]
-        else:
-            items.append((f"--{key.replace('_', '-')}", key, value))
-    user = given(args)
-    done = []
-    for option, name, value in items:
-        action = parser._option_string_actions.get(option)
-        if action is None or action.dest in (argparse.SUPPRESS, "help") or option in ("--config", "--help-all"):
-            raise BadArgumentError(f"--config {path}: {name}: no such setting for '{parser.prog}' "
-                                   f"(see {parser.prog} --help-all)")
-        parsed = _file_value(action, value, f"--config {path}: {name}")
-        if isinstance(action, _Renamed):
-            new = action.new_prefixed if "." in option else action.new_plain
-            key = f"[{new[2:].split('.')[0]}] {new.split('.', 1)[1]}" if "." in new else new[2:]
-            logging.getLogger("photorecon").warning("--config %s: %s is now %s (the former name still works, for "
-                                                    "now)", path, name, key.replace("-", "_"))
-        if action.dest in user:
-            continue  # the command line wins
-        setattr(args, action.dest, parsed)
-        done.append(action.dest)
-    if done:
-        setattr(args, "_given", user | set(done))  # a preset does not override the file either
-    return done
 
 
 # --- commands ---------------------------------------------------------------------------------------------

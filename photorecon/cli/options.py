@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from .config import apply_preset
+from .settings import apply_preset
 
 
 OVERWRITE_HELP = ("write into a non-empty folder this command did not write: its files are added next to what is "

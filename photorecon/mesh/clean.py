@@ -44,8 +44,7 @@ class CleanConfig:
     cluster_voxel: float = field(default=0.0, metadata={"help": "vertex-clustering simplification cell size, scene units (0 = off)", "range": (0.0, None)})
     crop: tuple[float, ...] | None = field(default=None, metadata={"help": "crop box xmin,ymin,zmin,xmax,ymax,zmax, scene units", "range": (None, None), "length": 6, "box": True, "metavar": "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX"})
     scene: Literal["auto", "object", "open"] = field(default="auto", metadata={"help": "object: remove the table or turntable an object stands on; open: keep the ground; auto: object when the cameras look at one point from around it and a support plane lies under it"})
-    object: bool = field(default=False, metadata={"help": "the same as --scene object"})
-    object_cut: float = field(default=0.0, metadata={"help": "--object: remove up to this height above the support plane, scene units (0 = the support's fused thickness)", "range": (0.0, None)})
+    object_cut: float = field(default=0.0, metadata={"help": "--scene object: remove up to this height above the support plane, scene units (0 = the support's fused thickness)", "range": (0.0, None)})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
@@ -99,7 +98,7 @@ def clean_open3d(m, metadata: dict, cfg: CleanConfig | None = None, cameras=None
         if np.any(hi <= lo):
             raise BadArgumentError(f"crop: expected min < max on every axis, got {list(cfg.crop)}")
         m = m.crop(o3d.geometry.AxisAlignedBoundingBox(lo, hi))
-    mode = "object" if cfg.object else cfg.scene
+    mode = cfg.scene
     if mode not in ("auto", "object", "open"):
         raise BadArgumentError(f"scene: expected auto, object or open, got {mode!r}")
     scene = {"mode": "open", "detected": "open", "reason": "--scene open", "support_removed": None}

@@ -137,7 +137,7 @@ def find_support(m, cameras, voxel: float | None = None, cut: float = 0.0, n_sam
     (n, c, cut, drop): the plane n . X = c (n towards the cameras), the cut height and, per triangle, True where
     its centre lies below the cut; or None when there is no such plane. Changes nothing."""
     if cameras is None or not len(cameras):
-        raise BadArgumentError("--object needs the cameras (to tell which side of the table they are on)")
+        raise BadArgumentError("--scene object needs the cameras (to tell which side of the table they are on)")
     V = np.asarray(m.vertices)
     T = np.asarray(m.triangles)
     if not len(T):
