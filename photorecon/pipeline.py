@@ -52,7 +52,7 @@ from .fusion import FusionConfig
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
 from .mesh.refine import RefineConfig
-from .report import VIEWER_MAX_FACES, decimate_for_viewer, write_html_report
+from .report import PAGE_MAX_FACES, decimate_for_viewer, write_html_report
 from .poses.scale import ScaleConfig
 from .poses.sfm import SfMConfig
 from .layout import Layout
@@ -225,7 +225,7 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
     from .resources import release_memory
 
     release_memory()  # what the fusion stage freed (its frames, the grids)
-    small = decimate_for_viewer(mesh, VIEWER_MAX_FACES)
+    small = decimate_for_viewer(mesh, PAGE_MAX_FACES)
     release_memory()
     export(small, layout.viewer_mesh)
     render_preview(small, layout.preview, cameras=ds.views)
@@ -251,7 +251,7 @@ def first_look_stage(maps: dict, ds, layout: Layout, fusion_cfg: FusionConfig) -
         return
     with atomic_dir(layout.first_look) as tmp:
         export(mesh, tmp / "mesh.ply")
-        render_preview(decimate_for_viewer(mesh, VIEWER_MAX_FACES), tmp / "preview.png", cameras=ds.views)
+        render_preview(decimate_for_viewer(mesh, PAGE_MAX_FACES), tmp / "preview.png", cameras=ds.views)
     log.info("first look: %s (%d faces from the coarse depth maps of %d views, %.0f CPU s); the full result "
              "replaces it", layout.first_look / "preview.png", len(mesh.faces), len(maps), time.process_time() - t0)
 
@@ -409,7 +409,7 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                               **({"refine": asdict(cfgs.refine)} if cfgs.refine.refine else {})},
                    fusion, outputs=[layout.mesh(fmt) for fmt in formats] + [layout.mesh_closed(fmt) for fmt in formats],
                    optional=[layout.mesh_closed(fmt) for fmt in formats], result=True)
-        stages.run("preview", {"viewer_faces": VIEWER_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh],
+        stages.run("preview", {"viewer_faces": PAGE_MAX_FACES}, preview, outputs=[layout.preview, layout.viewer_mesh],
                    result=True)
 
         # 4. the textured model: the mesh simplified and textured from the photos: OUT/model.glb (+ .obj)

@@ -121,7 +121,7 @@ def child(args) -> dict:
 
         def preview_stage(mesh, ds, layout):
             preview_mod.render_preview(mesh, layout.preview, cameras=ds.views)
-            mesh_mod.export(report_mod.decimate_for_viewer(mesh, report_mod.VIEWER_MAX_FACES), layout.viewer_mesh)
+            mesh_mod.export(report_mod.decimate_for_viewer(mesh, report_mod.PAGE_MAX_FACES), layout.viewer_mesh)
     from photorecon.resources import measure
 
     progress.set_enabled(False)

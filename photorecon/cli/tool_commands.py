@@ -11,7 +11,7 @@ from .options import OVERWRITE_FILE_HELP, OVERWRITE_HELP, _out_args
 
 @command
 def view(sub):
-    from ..report import VIEW_MAX_FACES
+    from ..report import LIVE_MAX_FACES, PAGE_MAX_FACES
 
     p = sub.add_parser("view", help="look at a result: the mesh and the cameras in a browser (served on localhost)",
                        description="Serves an interactive 3D view of a result (the mesh, the cameras as frusta with "
@@ -21,8 +21,8 @@ def view(sub):
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1, this machine only)")
     p.add_argument("--port", type=Ranged(int, 0, 65535), default=8080, help="port (default: 8080; 0 = any free port)")
     p.add_argument("--max-faces", type=Ranged(int, 4, 2_000_000_000), default=None,
-                   help=f"decimate larger meshes to this many faces (default: {VIEW_MAX_FACES:,} served, "
-                        "200,000 for --html)")
+                   help=f"decimate larger meshes to this many faces (default: {LIVE_MAX_FACES:,} served, "
+                        f"{PAGE_MAX_FACES:,} for --html)")
     p.add_argument("--lighting", choices=("environment", "plain"), default="environment",
                    help="environment: soft image-based light from all sides (default); plain: directional "
                         "lights only, quick to draw in a browser without a GPU")
@@ -35,7 +35,7 @@ def _run_view(args):
     import time
 
     from ..errors import BadArgumentError
-    from ..report import (VIEW_MAX_FACES, VIEWER_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
+    from ..report import (LIVE_MAX_FACES, PAGE_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
                          write_viewer_page)
 
     if args.max_faces is not None and args.max_faces < 4:
@@ -49,11 +49,11 @@ def _run_view(args):
     mesh, cameras, images = load_result(args.result)
     if args.html:
         path = write_viewer_page(args.html, mesh, cameras, title=f"photorecon: {args.result}",
-                                 max_faces=args.max_faces or VIEWER_MAX_FACES)
+                                 max_faces=args.max_faces or PAGE_MAX_FACES)
         print(f"view: {len(mesh.faces):,} faces, {len(cameras)} cameras -> {path} (open it in a browser)")
         return 0
     try:
-        server = start_viewer_server(mesh, cameras, images, args.host, args.port, args.max_faces or VIEW_MAX_FACES,
+        server = start_viewer_server(mesh, cameras, images, args.host, args.port, args.max_faces or LIVE_MAX_FACES,
                                      args.lighting)
     except OSError as exc:
         raise BadArgumentError(f"--host {args.host} --port {args.port}: cannot serve there ({exc})") from None

@@ -23,9 +23,6 @@ from .viewer import (PAGE_MAX_FACES, VIEWER_CSS, VIEWER_ELEVATION_DEG, VIEWER_FO
                      frustum_scale, frustum_segments, initial_eye, initial_view, scene_up, viewer_html,
                      viewer_payload, write_viewer_page)
 
-# the budgets' former names, which pipeline.py and cli/tool_commands.py still import
-VIEWER_MAX_FACES, VIEW_MAX_FACES = PAGE_MAX_FACES, LIVE_MAX_FACES
-
 __all__ = ["LIVE_MAX_FACES", "MESH_NAMES", "PAGE_MAX_FACES", "VIEWER_CSS", "VIEWER_ELEVATION_DEG", "VIEWER_FOV_DEG",
            "decimate_for_viewer", "find_mesh", "frustum_scale", "frustum_segments", "initial_eye", "initial_view",
            "load_result", "result_cameras", "scene_up", "start_viewer_server", "stop_viewer_server", "viewer_html",
