@@ -74,7 +74,8 @@ def test_every_declared_range_and_choice_is_checked_by_the_config_and_the_parser
     hints = typing.get_type_hints(cls)
     parser = Parser(prog="t")
     add_config_arguments(parser, cls)
-    actions = {a.dest.split(".", 1)[1]: a for a in parser._actions if "." in a.dest}
+    actions = {a.dest.split(".", 1)[1]: a for a in parser._actions  # each field's own flag, not a former name
+               if "." in a.dest and not getattr(a, "renamed_to", None)}
     checked = 0
     for f in dataclasses.fields(cls):
         tp = hints[f.name]
