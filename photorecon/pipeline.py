@@ -16,7 +16,8 @@ OUT layout::
                            the coarse depth maps; removed once the result is complete
     OUT/model.glb          the mesh simplified to --model-faces and textured from the photos (atlas at most
                            --max-atlas a side, embedded as JPEG); with --formats obj also model.obj + model.mtl +
-                           model.png; --texture off: none
+                           model.png; upright (+Y up, an object on its support at the origin; the transform
+                           from the reconstruction's frame in report.json's texture.frame); --texture off: none
     OUT/report.json        versions, parameters, per-stage seconds and peak memory, counts, warnings
     OUT/report.html        a self-contained page: an interactive 3D view of the mesh and cameras, the previews,
                            depth maps and numbers (photorecon.report)
@@ -418,10 +419,11 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
         if run.texture == "on":
             def model() -> dict:
                 mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
-                return model_output(out, cfgs.model, cfgs.texture, formats, mesh=mesh)
+                return model_output(out, cfgs.model, cfgs.texture, formats, mesh=mesh, fusion=stages.info.get("fusion"),
+                                    scale=stages.info.get("poses", {}).get("scale"))  # frame: plane, units
 
-            stages.run("model", {"model": asdict(cfgs.model), "texture": asdict(cfgs.texture),
-                                 "obj": "obj" in formats}, model, outputs=model_paths(layout, formats), result=True)
+            stages.run("model", {"model": asdict(cfgs.model), "texture": asdict(cfgs.texture), "obj": "obj" in formats,
+                                 "frame": "upright"}, model, outputs=model_paths(layout, formats), result=True)
         else:  # an earlier run's model goes with the run's success (put back if it fails)
             stages.set_aside(model_paths(layout, ("glb", "obj")) + [layout.stages / "model.json"], group="model")
     except BaseException:

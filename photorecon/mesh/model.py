@@ -12,6 +12,14 @@ rows of the full atlas width): a small model gets a small texture. ``model.glb``
 ``JPEG_QUALITY``: a tenth of the PNG's size for photo content); ``model.obj`` (with ``--formats`` including obj)
 refers to a lossless ``model.png``.
 
+**The model's frame.** ``model.glb`` (and ``model.obj``) stand upright in glTF's frame (``model_frame``,
+``upright.upright_frame``): +Y up, +Z towards the cameras. An object capture stands on the support plane that the
+cleaning removed (report.json's ``mesh``), its base centre at the origin; an open scene's up is the east-north-up
+frame's when GPS set the scale, else the cameras' up. Nothing is scaled: the model is in metres when the
+reconstruction is (markers, GPS, metric cameras given), else in its units. ``OUT/mesh.ply``, ``sparse/0`` and
+``transforms.json`` stay in the reconstruction's frame; report.json's ``texture.frame`` gives the rule and the 4x4
+``model_from_reconstruction`` that brings them (or cameras: ``upright.apply_views``) into the model's.
+
 The default face budget was measured on synthetic scenes against the full mesh in pixel footprints
 (docs/benchmarks.md, "Textured model: face budget").
 """
@@ -37,6 +45,7 @@ from ..layout import Layout
 from ..resources import available_bytes
 from .atlas import _merge_boxes, shelf_pack
 from .texture import TextureConfig, texture_mesh
+from .upright import Upright, upright_frame
 
 log = logging.getLogger("photorecon")
 
@@ -183,6 +192,51 @@ def build_model(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int]
     return Model(out, atlas, info)
 
 
+# --- the model's frame ------------------------------------------------------------------------------------------
+def model_frame(mesh: trimesh.Trimesh, views: list[View], fusion: dict | None = None,
+                scale: dict | None = None) -> Upright:
+    """The upright frame of the model of ``mesh`` (the cleaned mesh, in the reconstruction's frame) seen by
+    ``views``: ``upright.upright_frame`` given what the fusion stage recorded (``fusion``, report.json's
+    ``mesh``: the scene the cleaning detected, the support plane it removed, the voxel size; the mesh's own
+    ``metadata`` where ``fusion`` lacks them) and the poses stage's ``scale`` (report.json's ``poses.scale``:
+    units "metre": the model's units are metres; method "gps": the world is east-north-up, its +Z up for an
+    open scene). The support plane must be the cleaning's: the cleaned mesh has lost it, and the cameras' up
+    is wrong for a rig whose cameras hang upside down."""
+    fusion = fusion if isinstance(fusion, dict) else {}
+    scale = scale if isinstance(scale, dict) else {}
+    meta = {k: v for k, v in (getattr(mesh, "metadata", None) or {}).items()
+            if k in ("scene", "support_normal", "support_offset", "voxel_size")}
+    scene = fusion.get("scene")
+    if isinstance(scene, dict):
+        meta["scene"] = {"detected": scene.get("detected")}
+        removed = scene.get("support_removed")
+        if isinstance(removed, dict) and "support_normal" in removed and "support_offset" in removed:
+            meta.update(support_normal=removed["support_normal"], support_offset=removed["support_offset"])
+    if "support_normal" in fusion and "support_offset" in fusion:
+        meta.update(support_normal=fusion["support_normal"], support_offset=fusion["support_offset"])
+    if isinstance(fusion.get("voxel_size"), (int, float)) and fusion["voxel_size"] > 0:
+        meta["voxel_size"] = float(fusion["voxel_size"])
+    bare = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    bare.metadata = meta
+    units = "metres" if scale.get("units") == "metre" else "scene units (the reconstruction's, not metric)"
+    known_up = None
+    if scale.get("method") == "gps":
+        known_up = (np.array([0.0, 0.0, 1.0]), "GPS up",
+                    "up of the east-north-up frame the photos' GPS positions aligned the reconstruction to")
+    return upright_frame(bare, views, units=units, known_up=known_up)
+
+
+def frame_info(frame: Upright) -> dict:
+    """report.json's ``texture.frame``: the rule and the 4x4 ``model_from_reconstruction``."""
+    d = frame.to_dict()
+    info = {"rule": d["rule"], "reason": d["reason"], "units": d["units"], "up": "+Y", "forward": "+Z",
+            "model_from_reconstruction": d.pop("model_from_world"),
+            "reconstruction_frame": ["mesh.ply", "sparse/0", "transforms.json"]}
+    if "support_plane" in d:
+        info["support_plane"] = d["support_plane"]
+    return info
+
+
 # --- files -----------------------------------------------------------------------------------------------------
 def _encode(atlas: np.ndarray, fmt: str) -> bytes:
     from PIL import Image
@@ -258,10 +312,13 @@ def export_model(model: Model, layout: Layout, formats: tuple[str, ...] | list[s
 
 # --- the stage on a reconstruct output folder --------------------------------------------------------------------
 def model_output(out: str | Path, cfg: ModelConfig | None = None, texture: TextureConfig | None = None,
-                 formats: tuple[str, ...] | list[str] = ("glb",), mesh: trimesh.Trimesh | None = None) -> dict:
+                 formats: tuple[str, ...] | list[str] = ("glb",), mesh: trimesh.Trimesh | None = None,
+                 fusion: dict | None = None, scale: dict | None = None) -> dict:
     """``reconstruct``'s model stage on its output folder ``out`` (cameras in sparse/0 or transforms.json,
     photos in images/, masks in masks/): ``mesh`` (default ``out``/mesh.ply) -> ``out``/model.glb (and
-    model.obj, .mtl, .png with obj in ``formats``). Returns the facts for report.json's ``texture`` section."""
+    model.obj, .mtl, .png with obj in ``formats``), in the upright frame ``model_frame`` finds from ``fusion``
+    and ``scale`` (the fusion and poses stages' facts). Returns the facts for report.json's ``texture`` section,
+    the frame in its ``frame``."""
     from ..io.dataset import Dataset
     from .export import load_mesh
 
@@ -276,9 +333,14 @@ def model_output(out: str | Path, cfg: ModelConfig | None = None, texture: Textu
     views = ds.views
     if not views:
         raise TextureError(f"{out}: no cameras: the textured model needs the views the mesh was made from")
+    t1 = time.process_time()
+    frame = model_frame(mesh, views, fusion, scale)
+    cpu_frame = time.process_time() - t1
     model = build_model(mesh, views, lambda k: ds.image(views[k]), cfg, texture, ds.mask)
+    model.mesh.apply_transform(frame.model_from_world)  # textured in the photos' frame, written upright
     files = export_model(model, layout, formats)
     info = {**model.info, "files": files, "file_size": files[layout.model("glb").name],
+            "frame": frame_info(frame), "frame_cpu_seconds": round(cpu_frame, 2),
             "cpu_seconds": round(time.process_time() - t0, 2)}
     w, h = info["atlases"][0]
     log.info("model: %d faces, %dx%d atlas (%.2f texels per photo pixel), %d views used -> %s (%.1f MB)",

@@ -15,6 +15,8 @@ cameras'. ``upright_frame`` finds the rigid transform ``model_from_world`` that 
   rig whose cameras hang upside down (the walnut captures' turntable rig) gets an upside-down model unless the
   support plane is known, so pass the cleaned mesh with the plane the cleaning removed in its metadata (or the
   mesh before the cleaning).
+* **a known up** (``known_up``): where the world itself knows up (a GPS alignment's east-north-up frame), it
+  replaces the cameras' up, the origin found the same way.
 
 Forward: +Z points from the origin towards the cameras' mean position projected on the ground, so a default
 glTF view (a camera on +Z looking at -Z) shows the side the photos saw. Where that is undefined (cameras all
@@ -50,11 +52,12 @@ class Upright:
     """The model's frame found by ``upright_frame``.
 
     ``model_from_world``: 4x4 rigid transform (rotation and translation, no scale) from the reconstruction's
-    world to the model's frame (+Y up, +Z forward, X = Y x Z). ``rule``: "support plane" or "camera up" (the
-    rule that set up and origin); ``reason``: why, in words. ``up_world``, ``forward_world``: the model's +Y and
-    +Z in world coordinates (unit vectors); ``origin_world``: the world point that becomes the origin.
-    ``plane``: the support plane (n, c) with n . X = c in world coordinates, n towards the cameras (None under
-    "camera up"). ``units``: the model's length unit, the reconstruction's (nothing is scaled)."""
+    world to the model's frame (+Y up, +Z forward, X = Y x Z). ``rule``: "support plane", "camera up" or a
+    known up's rule (the rule that set up and origin); ``reason``: why, in words. ``up_world``,
+    ``forward_world``: the model's +Y and +Z in world coordinates (unit vectors); ``origin_world``: the world
+    point that becomes the origin. ``plane``: the support plane (n, c) with n . X = c in world coordinates, n
+    towards the cameras (None without one). ``units``: the model's length unit, the reconstruction's (nothing
+    is scaled)."""
 
     model_from_world: np.ndarray
     rule: str
@@ -77,7 +80,8 @@ class Upright:
 
 
 def upright_frame(mesh: trimesh.Trimesh, views: list[View] | None, scene: str = "auto", units: str = "scene units",
-                  voxel: float | None = None, seed: int = 0) -> Upright:
+                  voxel: float | None = None, seed: int = 0,
+                  known_up: tuple[np.ndarray, str, str] | None = None) -> Upright:
     """The rigid transform that stands ``mesh`` (in world coordinates, as reconstructed) upright in glTF's frame:
     +Y up, +Z towards the cameras, the origin at the object's base centre or the scene's centre on the ground.
 
@@ -89,9 +93,11 @@ def upright_frame(mesh: trimesh.Trimesh, views: list[View] | None, scene: str = 
     the cleaning removed (``support_normal`` "nx,ny,nz", ``support_offset``) uses that plane. ``units``: the
     name of the reconstruction's length unit, recorded (nothing is scaled). ``voxel``: the fusion's voxel size
     (``metadata["voxel_size"]`` when None), the support plane's tolerance. ``seed``: the plane search's; the
-    same inputs give the same transform.
+    same inputs give the same transform. ``known_up``: (up in world coordinates, rule, reason), an up known
+    from elsewhere (the east-north-up frame of a GPS alignment), used instead of the cameras' up where no support
+    plane sets the frame.
 
-    Returns an ``Upright`` (``model_from_world``, ``rule`` "support plane" or "camera up", ``reason``,
+    Returns an ``Upright`` (``model_from_world``, ``rule`` "support plane", "camera up" or ``known_up``'s, ``reason``,
     ``up_world``, ...). Changes nothing. Raises ``EmptyMeshError`` for a mesh without finite vertices,
     ``BadArgumentError`` for an unknown ``scene`` or when there is neither a support plane nor a camera."""
     if scene not in SCENES:
@@ -123,13 +129,18 @@ def upright_frame(mesh: trimesh.Trimesh, views: list[View] | None, scene: str = 
         origin = _base_centre(V[finite], F if finite.all() else np.zeros((0, 3), np.int64), n, c, views, voxel, keep)
         rule = "support plane"
     else:
-        if not views:
+        if known_up is not None:
+            up = np.asarray(known_up[0], float).reshape(3)
+            if not np.isfinite(up).all() or np.linalg.norm(up) < 1e-9:
+                raise BadArgumentError(f"upright frame: known up expected a direction, got {known_up[0]!r}")
+            up, rule, how = up / np.linalg.norm(up), str(known_up[1]), str(known_up[2])
+        elif not views:
             raise BadArgumentError("upright frame: no camera and no support plane: nothing tells which way is up")
-        up, how = camera_up(views)
+        else:
+            (up, how), rule = camera_up(views), "camera up"
         h = V[finite] @ up
         origin = np.median(V[finite], axis=0)
         origin += (float(np.percentile(h, 1)) - float(origin @ up)) * up
-        rule = "camera up"
         reason = (f"{reason}; " if reason else "") + how
     forward = _forward(up, origin, views)
     x = np.cross(up, forward)

@@ -56,6 +56,9 @@ def summary_facts(report: dict) -> dict[str, str]:
                                              for n, s in model["files"].items())
                                    + f": {format_count(model.get('faces'))} faces, atlas "
                                    + ", ".join(f"{w}x{h}" for w, h in model.get("atlases") or []))
+        frame = model.get("frame")
+        if isinstance(frame, dict) and frame.get("rule"):  # the model's upright frame: the rule, the units
+            facts["textured model"] += f"; +Y up by the {frame['rule']}, in {frame.get('units', 'scene units')}"
     scene = mesh.get("scene")
     if isinstance(scene, dict):  # --scene: what was detected (or given) and why
         how = "detected" if scene.get("mode") == "auto" else "given"
