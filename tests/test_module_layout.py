@@ -120,7 +120,7 @@ def test_sfm_names_importable_where_they_are_imported():
     from photorecon.poses import sfm
 
     names = set()
-    for path in [*ROOT.rglob("*.py"), *(ROOT.parent / "tests").glob("*.py"), *(ROOT.parent / "tools").glob("*.py")]:
+    for path in [*ROOT.rglob("*.py"), *(ROOT.parent / "tests").rglob("*.py"), *(ROOT.parent / "tools").glob("*.py")]:
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("sfm") and (
                     node.module in ("photorecon.poses.sfm", "photorecon.sfm", "poses.sfm")

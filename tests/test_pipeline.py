@@ -13,7 +13,7 @@ from photorecon.io.dataset import read_model
 from photorecon.metrics import align_cameras, mesh_metrics
 
 
-# PatchMatch on one pyramid level with 4 sources: the pipeline is under test here (test_patchmatch.py tests
+# PatchMatch on one pyramid level with 4 sources: the pipeline is under test here (depth/test_patchmatch.py tests
 # the depth itself); the defaults are for 1600-px photos
 LIGHT_PM = ["--n-sources", "4", "--pm-levels", "1", "--pm-iterations", "4", "--min-consistent", "1"]
 

@@ -25,7 +25,7 @@ towards the other photo's colour at the nearest point of the seam, by half the d
 to nothing at the strip's edge. A linear stand-in for MVS-Texturing's Poisson editing of the strip.
 
 ``seam_steps`` measures the result: the mean colour step across chart borders against the one across edges
-inside charts (``tools/bench_texture.py``, tests/test_seams.py).
+inside charts (``tools/bench_texture.py``, tests/mesh/test_seams.py).
 """
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ from photorecon.cli.config import Ranged, config_from_args, validate
 from photorecon.cli.settings import apply_settings_file
 from photorecon.errors import BadArgumentError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """Scene-aware cleaning (``--scene auto|object|open``): an object photographed from around it, standing on a
 table, is told from a facade, a street and a room by its cameras and its support plane; the table goes, the
-ground of an open scene stays. Rendered ground-truth depth, TSDF (the scenes of tests/test_object.py)."""
+ground of an open scene stays. Rendered ground-truth depth, TSDF (the scenes of tests/mesh/test_object.py)."""
 import numpy as np
 import pytest
 import trimesh

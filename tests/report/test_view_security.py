@@ -265,7 +265,7 @@ def test_view_while_a_run_writes_the_folder(tmp_path, capsys, caplog):
              for i, p in enumerate(ring_positions(3, 4.0, 20))]
     write_colmap_text(SparseModel(views), out / "sparse" / "0")
     page = tmp_path / "v.html"
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     writer = subprocess.Popen([sys.executable, "-c", WRITER, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                               text=True, env=env)
     try:

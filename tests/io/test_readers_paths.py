@@ -29,7 +29,7 @@ from photorecon.io.formats import write_llff, write_neus
 from photorecon.io.nerf import read_transforms, write_blender, write_transforms
 from photorecon.poses.ingest import list_images
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 W, H = 40, 30
 
 

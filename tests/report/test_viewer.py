@@ -31,7 +31,7 @@ from photorecon.io.images import write_image
 from photorecon.mesh import export
 
 BACKGROUND = np.array([238, 240, 243])  # the viewer's clear colour (0.933, 0.941, 0.953)
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 # --- a small result folder: a "snowman" (up is +z) with vertex colours, 8 cameras, their images ------------------

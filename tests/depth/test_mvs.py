@@ -14,7 +14,7 @@ from photorecon.io.dataset import Dataset
 from photorecon.mesh import clean
 from photorecon.metrics import depth_metrics, mesh_metrics
 
-# the plane sweep (--method sweep); PatchMatch has its own tests in test_patchmatch.py
+# the plane sweep (--method sweep); PatchMatch has its own tests in tests/depth/test_patchmatch.py
 CFG = MVSConfig(method="sweep", n_sources=4, n_depths=96, min_consistent=1, min_confidence=0.5)
 SWEEP = dict(method="sweep", n_sources=4, min_confidence=0.5)
 
