@@ -141,3 +141,37 @@ def test_triangulate_given_refuses_work_dir_inside_images_and_bad_models(ring16)
     with pytest.raises(BadArgumentError, match="at least 2 views"):
         triangulate_given(ring16 / "images", SparseModel(given.views[:1]), "/tmp/unused", CFG)
     assert not (ring16 / "images" / "work").exists()
+
+
+def _pair_rows(database):
+    import sqlite3
+
+    with sqlite3.connect(database) as db:  # a plain scan, as COLMAP's reader does: pair-id (rowid) order
+        return (db.execute("SELECT pair_id, rows, data FROM matches").fetchall(),
+                db.execute("SELECT pair_id, rows, config, data FROM two_view_geometries").fetchall())
+
+
+@pytest.mark.slow
+def test_given_cameras_match_on_any_number_of_threads_to_the_same_points(ring16, tmp_path):
+    """The matcher's threads store the pairs in the order they finish; the database keys them by pair id, so
+    the triangulator reads them in the same order whatever that order was, and each pair's RANSAC is seeded:
+    two threads twice and one thread give the same bytes."""
+    given = _bare(read_model(ring16))
+    runs = {}
+    for name, threads in (("a", 2), ("b", 2), ("one", 1)):
+        stats = TriangulateStats()
+        cfg = TriangulateConfig(threads=threads, matcher="overlap", overlap_neighbors=8)
+        runs[name] = (triangulate_given(ring16 / "images", given, tmp_path / name, cfg, stats), stats)
+    ref, ref_stats = runs["a"]
+    assert len(ref.points) > 200 and ref_stats.matcher == "overlap" and ref_stats.pairs < 16 * 15 // 2
+    matches, geometries = _pair_rows(tmp_path / "a" / "database.db")
+    assert len(matches) == ref_stats.pairs and [r[0] for r in matches] == sorted(r[0] for r in matches)
+    assert sum(r[1] > 0 for r in geometries) > 16  # verified pairs, not only empty rows
+    for name in ("b", "one"):
+        out, _ = runs[name]
+        assert _pair_rows(tmp_path / name / "database.db") == (matches, geometries), name
+        for field in ("points", "colors", "point_ids", "errors"):
+            assert getattr(out, field).tobytes() == getattr(ref, field).tobytes(), (name, field)
+        assert out.observations.keys() == ref.observations.keys()
+        for v, (uv, ids) in ref.observations.items():
+            assert out.observations[v][0].tobytes() == uv.tobytes() and out.observations[v][1].tobytes() == ids.tobytes()

@@ -31,6 +31,7 @@ from ..errors import BadArgumentError, InputDataError, OutputError
 from ..io.colmap_text import SparseModel
 from ..io.paths import IMAGE_SUFFIXES, inside
 from ..progress import running
+from .extract import _number_images_by_name
 from ..config_checks import check_config
 
 log = logging.getLogger("photorecon")
@@ -52,7 +53,7 @@ class TriangulateConfig:
         "help": "contrast normalisation of the images feature extraction sees (dark or low-contrast photos give few features otherwise); point colours come from the originals"})
     use_alpha_mask: bool = field(default=True, metadata={"help": "no features where an image's alpha channel is 0"})
     min_points: int = field(default=50, metadata={"help": "fewer triangulated points than this: warn and return the model unchanged", "range": (0, 100_000_000)})
-    threads: int = field(default=-1, metadata={"help": "SIFT extraction threads (-1 = all cores; the matching and the triangulation run on one thread: the same points run after run)", "range": (1, 4096), "also": (-1,)})
+    threads: int = field(default=-1, metadata={"help": "SIFT extraction and matching threads (-1 = all cores; the same points with any number; the triangulation runs on one thread)", "range": (1, 4096), "also": (-1,)})
     seed: int = field(default=0, metadata={"help": "random seed of the pairs' RANSAC and of the triangulator (the same points run after run, as SfM's --seed)", "range": (0, 2**31 - 1)})
 
     def __post_init__(self):
@@ -300,6 +301,9 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
                                       extraction_options=ext, device=pycolmap.Device.cpu)
     except Exception as exc:  # pycolmap raises RuntimeError / ValueError with COLMAP's check message
         return fail(f"SIFT extraction failed ({_first_line(exc)})")
+    # the extraction threads number the images in the order they finish; the pairs' ids, the direction each
+    # pair is matched in and the order the triangulator builds its tracks in follow the numbers
+    _number_images_by_name(db_path)
     stats.seconds["extraction"] = time.perf_counter() - t0
 
     # 2. matching: all pairs, or those whose frusta overlap
@@ -308,9 +312,10 @@ def triangulate_given(images_dir: str | Path, model: SparseModel, work_dir: str 
     if matcher == "auto":
         matcher = "exhaustive" if len(views) <= cfg.exhaustive_max else "overlap"
     mopt = pycolmap.FeatureMatchingOptions()
-    # one thread: the matcher's threads write the pairs into the database in the order they finish, and the
-    # triangulator builds its tracks in the database's order (the same points need the same order)
-    mopt.num_threads = 1
+    # all threads: they write the pairs into the database in the order they finish, but the database keys each
+    # pair's matches and geometry by its pair id (a rowid), so the triangulator reads them back in pair order
+    # whatever the order of writing; each pair's RANSAC is seeded: the same points whichever thread runs it
+    mopt.num_threads = cfg.threads
     vopt = pycolmap.TwoViewGeometryOptions()
     vopt.ransac.random_seed = cfg.seed  # each pair's RANSAC seeded: the same inliers, the same points, run after run
     pycolmap.set_random_seed(cfg.seed)
