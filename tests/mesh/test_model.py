@@ -47,7 +47,7 @@ def test_default_reconstruct_writes_a_simplified_textured_model(model_run, blob_
 
     out, names, rep = model_run
     assert names == ["poses", "depth", "fusion", "preview", "model"]
-    m = _load(out / "model.glb")
+    m = _in_reconstruction_frame(_load(out / "model.glb"), rep)
     img = m.visual.material.baseColorTexture
     assert max(img.size) <= 8192 and min(img.size) >= 16
     assert 0.5 * BUDGET <= len(m.faces) <= BUDGET < rep["mesh"]["faces"]
@@ -70,6 +70,13 @@ def test_default_reconstruct_writes_a_simplified_textured_model(model_run, blob_
                           np.asarray(_png(out / "model.png")))
 
 
+def _in_reconstruction_frame(model, rep):
+    """``model`` (read from model.glb, upright) moved back into the reconstruction's frame, the truth's, by the
+    inverse of report.json's ``texture.frame.model_from_reconstruction``."""
+    model.apply_transform(np.linalg.inv(np.array(rep["texture"]["frame"]["model_from_reconstruction"])))
+    return model
+
+
 def _png(path):
     from PIL import Image
 
@@ -80,8 +87,8 @@ def _png(path):
 def test_model_colours_match_the_photos_from_the_input_views(model_run, blob_small):
     """Rendered unlit from input views, the model shows the photos' colours: on the pixels both cover, a mean
     absolute error under 10 (of 255) per channel and a PSNR of at least 25 dB in every view checked."""
-    out, _, _ = model_run
-    m = _load(out / "model.glb")
+    out, _, rep = model_run
+    m = _in_reconstruction_frame(_load(out / "model.glb"), rep)
     ds = Dataset.open(blob_small)
     r = Renderer(m, unlit=True)
     truth = Renderer(trimesh.load(blob_small / "gt_mesh.ply", process=False), seed=3)
