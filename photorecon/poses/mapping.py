@@ -59,6 +59,17 @@ def _incremental_options(pycolmap, cfg: SfMConfig, fixed_intrinsics: bool, relax
     return opt
 
 
+def _global_options(pycolmap, cfg: SfMConfig, fixed_intrinsics: bool):
+    gopt = pycolmap.GlobalPipelineOptions()
+    gopt.random_seed = cfg.seed
+    gopt.num_threads = cfg.threads
+    if fixed_intrinsics:
+        gopt.mapper.bundle_adjustment.refine_focal_length = False
+        gopt.mapper.bundle_adjustment.refine_principal_point = False
+        gopt.mapper.bundle_adjustment.refine_extra_params = False
+    return gopt
+
+
 def map_model(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool,
               mapper: str = "incremental") -> Path:
     """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``.
@@ -71,13 +82,7 @@ def map_model(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig,
     with tempfile.TemporaryDirectory(dir=model_dir.parent, prefix=".mapper") as runs, atomic_dir(model_dir) as tmp, \
             running(f"SfM {mapper} mapping ({n} photos)"):
         if mapper == "global":
-            gopt = pycolmap.GlobalPipelineOptions()
-            gopt.random_seed = cfg.seed
-            gopt.num_threads = cfg.threads
-            if fixed_intrinsics:
-                gopt.mapper.bundle_adjustment.refine_focal_length = False
-                gopt.mapper.bundle_adjustment.refine_principal_point = False
-                gopt.mapper.bundle_adjustment.refine_extra_params = False
+            gopt = _global_options(pycolmap, cfg, fixed_intrinsics)
             recs = list(pycolmap.global_mapping(str(database), str(images_dir), runs, gopt).values())
         else:
             recs = []
