@@ -2,9 +2,9 @@
 """Benchmark of the mappers on one matched capture: photorecon's incremental mapping (``mapping.map_model``,
 with its relaxed retries) on 1 and on 2 threads, its global mapping (GLOMAP) and pycolmap's hierarchical
 mapping, each on its own copy of the same ``database.db`` (the features and verified matches of a ``photorecon
-sfm`` run), each ``--repeats`` times. Per run: photos registered, mean rotation error (degrees) and camera-centre
-error (% of the reference cameras' spread) after Sim3 alignment to the reference cameras
-(``photorecon.metrics.pose_metrics``), process CPU seconds (user + system, all threads) and wall seconds; per
+sfm`` run), each ``--repeats`` times. Per run: photos registered, rotation error (degrees: mean, median, photos
+over 5) and mean camera-centre error (% of the reference cameras' spread) after Sim3 alignment to the reference
+cameras (``photorecon.metrics.pose_metrics``), process CPU seconds (user + system, all threads) and wall seconds; per
 mapper, whether its runs gave the same poses (largest difference of the cam_from_world matrices, in the
 model's own frame). What ``--mapper auto`` / ``--global-min`` should choose rests on these figures.
 
@@ -12,7 +12,7 @@ The capture defaults to ``gold_cape`` (../shared/data/gold_cape, or $PHOTORECON_
 ``photorecon sfm -o OUT gold_cape/images`` once, then
 
     python tools/bench_mappers.py OUT [--reference gold_cape/reference] [--mappers incremental1,incremental2,global,hierarchical]
-                                      [--repeats 2] [--leaf-max 60] [--json out.json]
+                                      [--repeats 2] [--leaf-max 60] [--keep DIR] [--json out.json]
 
 Mappers: ``incrementalN`` (photorecon's incremental options, N threads; photorecon maps on 1), ``global``
 (photorecon's GLOMAP options, all threads), ``hierarchical`` (pycolmap.hierarchical_mapping with photorecon's
@@ -97,6 +97,7 @@ def main() -> None:
     ap.add_argument("--mappers", default="incremental1,incremental2,global,hierarchical")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--leaf-max", type=int, default=60, help="hierarchical: most photos per cluster")
+    ap.add_argument("--keep", type=Path, metavar="DIR", help="keep each run's model as DIR/MAPPER_RUN")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     colmap = a.sfm_out / "colmap"
@@ -106,7 +107,8 @@ def main() -> None:
             raise SystemExit(f"{p}: not found; run photorecon sfm -o {a.sfm_out} PHOTOS first")
     reference = read_model(a.reference).views
     rows = []
-    print(f"{'mapper':14} {'run':>3} {'registered':>10} {'rot deg':>8} {'centre %':>8} {'CPU s':>7} {'wall s':>7}")
+    print(f"{'mapper':14} {'run':>3} {'registered':>10} {'rot deg':>8} {'median':>8} {'>5 deg':>6} {'centre %':>8} "
+          f"{'CPU s':>7} {'wall s':>7}")
     for name in a.mappers.split(","):
         views = []
         for k in range(a.repeats):
@@ -115,14 +117,19 @@ def main() -> None:
                 model = run_mapper(name, database, images, Path(tmp), a.leaf_max)
                 cpu, wall = _cpu() - c0, time.perf_counter() - t0
                 est = read_model(model).views if any(model.iterdir()) else []
+                if a.keep:
+                    shutil.copytree(model, a.keep / f"{name}_{k}", dirs_exist_ok=True)
             m = pose_metrics(est, reference) if len(est) >= 3 else None
             row = {"mapper": name, "run": k, "registered": len(est), "cpu_s": round(cpu, 1), "wall_s": round(wall, 1),
-                   "rot_mean_deg": m and round(m["rot_mean_deg"], 4),
+                   "rot_mean_deg": m and round(m["rot_mean_deg"], 4), "rot_median_deg": m and round(m["rot_median_deg"], 4),
+                   "rot_over_5deg": m and sum(v["rot_deg"] > 5 for v in m["per_image"].values()),
                    "center_mean_pct": m and round(100 * m["center_mean_rel"], 3)}
             rows.append(row)
             views.append(est)
-            print(f"{name:14} {k:>3} {len(est):>10} {row['rot_mean_deg'] or float('nan'):>8.4f} "
-                  f"{row['center_mean_pct'] or float('nan'):>8.3f} {cpu:>7.1f} {wall:>7.1f}", flush=True)
+            nan = float("nan")
+            print(f"{name:14} {k:>3} {len(est):>10} {m['rot_mean_deg'] if m else nan:>8.4f} "
+                  f"{m['rot_median_deg'] if m else nan:>8.4f} {row['rot_over_5deg'] if m else '-':>6} "
+                  f"{100 * m['center_mean_rel'] if m else nan:>8.3f} {cpu:>7.1f} {wall:>7.1f}", flush=True)
         if len(views) > 1:
             diff = max(pose_difference(views[0], v) for v in views[1:])
             rows.append({"mapper": name, "same_poses": diff == 0.0, "max_pose_difference": diff})

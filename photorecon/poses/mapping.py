@@ -70,6 +70,25 @@ def _global_options(pycolmap, cfg: SfMConfig, fixed_intrinsics: bool):
     return gopt
 
 
+def _unmatchable(pycolmap, database: Path, recs: list, min_matches: int) -> list[str]:
+    """The images of ``database`` that the largest of ``recs`` leaves out, when each of them has fewer than
+    ``min_matches`` verified matches with every other image (no incremental mapping registers those, whatever
+    its thresholds: RELAXED_MAPPING keeps ``min_num_matches``); else []."""
+    db = pycolmap.Database.open(str(database))
+    try:
+        pairs, counts = db.read_two_view_geometry_num_inliers()
+        names = {im.image_id: im.name for im in db.read_all_images()}
+    finally:
+        db.close()
+    matched = set()
+    for pair, count in zip(pairs, counts):
+        if count >= min_matches:
+            matched.update(pycolmap.pair_id_to_image_pair(pair))
+    best = max(recs, key=lambda r: r.num_reg_images())
+    left_out = set(names) - {best.images[i].image_id for i in best.reg_image_ids()}
+    return [] if left_out & matched else sorted(names[i] for i in left_out)
+
+
 def map_model(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig, fixed_intrinsics: bool,
               mapper: str = "incremental") -> Path:
     """Incremental or global (``mapper``) mapping; writes the largest model, COLMAP binary, to ``model_dir``.
@@ -88,6 +107,10 @@ def map_model(database: Path, images_dir: Path, model_dir: Path, cfg: SfMConfig,
             recs = []
             for i, relaxed in enumerate((None,) + RELAXED_MAPPING):
                 if recs and max(r.num_reg_images() for r in recs) >= n:
+                    break
+                if recs and (lost := _unmatchable(pycolmap, database, recs, opt.min_num_matches)):
+                    log.info("mapping: %d of %d images registered; not mapped again: the others (%s) have no "
+                             "verified matches", max(r.num_reg_images() for r in recs), n, ", ".join(lost))
                     break
                 if relaxed:
                     log.info("mapping: %d of %d images registered; again with relaxed thresholds (%d)",
