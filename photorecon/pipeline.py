@@ -50,6 +50,7 @@ from .depth.mvs import MVSConfig
 from .distributed import ClusterConfig, make_executor
 from .errors import BadArgumentError, NoDepthError, NoImagesError
 from .fusion import FusionConfig
+from .fusion.budget import planned_footprint, voxel_settings
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
 from .mesh.refine import RefineConfig
@@ -222,7 +223,6 @@ def preview_stage(mesh, ds, layout: Layout) -> None:
     more than its faces)."""
     from .mesh import export
     from .report.preview import render_preview
-
     from .resources import release_memory
 
     release_memory()  # what the fusion stage freed (its frames, the grids)
@@ -371,7 +371,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                     if note:
                         log.warning(note)
                     rep = run_mvs(ds, tmp_depth, cfgs.mvs, executor(), work / "depth",
-                                  on_coarse=lambda maps: first_look_stage(maps, ds, layout, cfgs.fusion))
+                                  on_coarse=lambda maps: first_look_stage(maps, ds, layout, cfgs.fusion),
+                                  mesh_footprint=lambda maps, working: planned_footprint(maps, working, cfgs.fusion))
                     n_depth = rep["depth_views"]["chosen"]  # the views that were to get a depth map (--depth-views)
                     info = {"source": "mvs", "views": rep["views"], "skipped": rep["skipped"],
                             "depth_views": rep["depth_views"],
@@ -391,7 +392,8 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
             return info
 
         depth_inputs = whole.inputs(run, fingerprint) if whole is not None else asdict(cfgs.mvs)
-        stages.run("depth", {"source": source, "inputs": depth_inputs}, depth, outputs=[layout.depth])
+        stages.run("depth", {"source": source, "inputs": depth_inputs,  # MVS: also what sets the voxel it plans for
+                             "mesh": None if whole is not None else voxel_settings(cfgs.fusion)}, depth, outputs=[layout.depth])
 
         # 3. fusion, cleaning, export: OUT/mesh.*; then OUT/preview.png
         fused = {}

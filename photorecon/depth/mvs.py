@@ -51,7 +51,8 @@ from .filter import _filter_config, _filter_plan, consistency_count  # noqa: F40
 from .graph import mvs_tasks, run_task
 from .methods import method
 from .select import camera_depth_range, depth_range, select_sources
-from .views import ViewChoice, choose_depth_views, coarse_depth_views, wants_coarse_cover
+from .views import (ViewChoice, choose_depth_views, coarse_depth_views, confirmed_surface, mesh_levels,
+                    wants_coarse_cover)
 from .work import MVSContext, gray as _gray, working_view as _working_view  # noqa: F401 (re-exported)
 
 log = logging.getLogger("photorecon")
@@ -150,16 +151,16 @@ def _log_choice(choice, cfg: MVSConfig) -> list[str]:
     return choice.chosen
 
 
-def _coarse_choice(ctx: MVSContext, ex) -> tuple[dict, ViewChoice]:
-    """``--depth-views coarse``: the method's coarse depth map of every planned view (``coarse_maps``), then the
-    views whose full depth maps cover that surface (``views.coarse_depth_views``). Returns the coarse tasks'
-    results, the choice and the coarse maps."""
-    results, maps = method(ctx.cfg.method).coarse_maps(ctx, ex)
+def _coarse_choice(ctx: MVSContext, ex, on_first=None) -> tuple[dict, ViewChoice]:
+    """``--depth-views coarse``: the method's coarse depth map of every planned view (``coarse_maps``; ``on_first``
+    gets the maps of the views it computes first), then the views whose full depth maps cover that surface
+    (``views.coarse_depth_views``). Returns the coarse tasks' results, the choice and the coarse maps."""
+    results, maps = method(ctx.cfg.method).coarse_maps(ctx, ex, on_first)
     return results, coarse_depth_views([ctx.plan[n][0] for n in ctx.plan], maps, ctx.cfg), maps
 
 
 def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = None, executor: Executor | None = None,
-            work_dir: str | Path | None = None, on_coarse=None) -> MVSResult:
+            work_dir: str | Path | None = None, on_coarse=None, mesh_footprint=None) -> MVSResult:
     """MVS for every view of a ``Dataset``; writes depth maps (at working resolution: the camera's, or smaller
     with the same aspect ratio when the images exceed ``max_size``), confidences, normals and previews
     to ``out_dir`` (default: DATASET/depth). Returns a report dict. Raises ``NoDepthError`` if no view
@@ -170,9 +171,13 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     OUT_DIR/.mvs_work), in a sub-folder named after a hash of the settings and inputs: an interrupted run's
     finished tasks are reused by the next run with the same settings; the sub-folder is removed on success.
 
-    ``on_coarse(maps)``: called once the coarse depth maps of every view exist (on a capture that gets them,
-    see ``views.wants_coarse_cover``), with ``{name: (view at the map's resolution, depth, normal, cost)}``,
-    before the chosen views' full depth maps are computed (the pipeline makes a first look of them)."""
+    ``on_coarse(maps)``: on a capture that gets coarse depth maps (``views.wants_coarse_cover``), called with
+    ``{name: (view at the map's resolution, depth, normal, cost)}`` of the views whose coarse maps are computed
+    first (a spread share of a large capture, ``views.first_look_views``), before the others' and before the
+    chosen views' full depth maps (the pipeline makes a first look of them). ``mesh_footprint(maps, working)``:
+    on such a capture with ``--depth-resolution auto``, the pixel footprint the fused mesh will keep, planned from
+    the coarse maps (``working``: view name -> view at its working resolution), or None; a view whose half-resolution
+    depth map has it gets that (``views.mesh_levels``)."""
     import shutil
 
     cfg = expect_config(cfg, MVSConfig, "cfg")
@@ -207,17 +212,23 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
                       _filter_plan(model, views, cfg))
     coarse_results: dict = {}
     if coarse:
-        coarse_results, coarse_choice, maps = _coarse_choice(ctx, ex)
-        if on_coarse is not None:
-            on_coarse(maps)
+        coarse_results, coarse_choice, maps = _coarse_choice(ctx, ex, on_coarse)
+        if mesh_footprint is not None and cfg.depth_resolution == "auto":
+            working = {n: ctx.plan[n][0] for n in maps if n in ctx.plan}
+            surface = confirmed_surface(maps, {n: ctx.plan[n][1] for n in working}, max(1, cfg.min_consistent))
+            need = mesh_footprint(surface, working)
+            if need:
+                coarse_choice = mesh_levels(coarse_choice, working, maps, need)
         del maps
         choice = coarse_choice if choice is None else coarse_choice.after(choice)
         model = _restricted(model, _log_choice(choice, cfg))
         views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
         levels = {n: choice.level(n) for n in views if choice.level(n)}  # depth maps at half resolution
         if levels:
-            log.info("mvs: %d of %d depth maps at half resolution (--depth-resolution %s: full-resolution views see "
-                     "their surface as finely)", len(levels), len(views), cfg.depth_resolution)
+            n_mesh = sum(1 for n in levels if n in choice.mesh_half)
+            log.info("mvs: %d of %d depth maps at half resolution (--depth-resolution %s: %d where the fused mesh "
+                     "keeps no finer detail than a half-resolution map has, %d where full-resolution views see their "
+                     "surface as finely)", len(levels), len(views), cfg.depth_resolution, n_mesh, len(levels) - n_mesh)
         ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg), levels=levels)
     t_graph = time.perf_counter()
     # the bar counts tasks (each view's PatchMatch rounds, then its filter), not views

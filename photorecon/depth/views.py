@@ -37,6 +37,10 @@ class ViewChoice:
     # per chosen view: (pyramid level of its depth map: 0 = the working resolution, 1 = half; the share of its
     # coarse surface that full-resolution views see as finely from a similar direction); empty: every view full
     resolution: dict = field(default_factory=dict)
+    # the pixel footprint the fused mesh's voxel asks of the depth maps (``mesh_levels``), and the chosen views whose
+    # half-resolution map has it (view -> its footprint at the working resolution); None / empty: not planned
+    mesh_footprint: float | None = None
+    mesh_half: dict = field(default_factory=dict)
 
     def after(self, first: "ViewChoice") -> "ViewChoice":
         """This choice, made among the views ``first`` chose: counted against ``first``'s total, both reasons."""
@@ -45,16 +49,21 @@ class ViewChoice:
     def to_dict(self) -> dict:
         d = {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
              "uncovered_points": self.uncovered_points}
-        if self.resolution:
-            d["half_resolution"] = sum(1 for lvl, _ in self.resolution.values() if lvl > 0)
+        if self.resolution or self.mesh_half:
+            d["half_resolution"] = sum(1 for n in self.chosen if self.level(n) > 0)
+        if self.mesh_footprint is not None:
+            d["mesh_footprint"] = self.mesh_footprint
         return d if self.surface_samples is None else {**d, "surface_samples": self.surface_samples}
 
     def level(self, name: str) -> int:
         """The pyramid level of view ``name``'s depth map (0: the working resolution, 1: half of it)."""
-        return self.resolution.get(name, (0, 0.0))[0]
+        return 1 if name in self.mesh_half else self.resolution.get(name, (0, 0.0))[0]
 
     def resolution_reason(self, name: str) -> str | None:
         """Why view ``name``'s depth map has its resolution (for the report), or None when no choice was made."""
+        if name in self.mesh_half:
+            return (f"half: the fused mesh's voxel keeps detail down to a footprint of {self.mesh_footprint:.3g}, "
+                    f"and this view's half-resolution map has {MESH_LEVEL_SCALE * self.mesh_half[name]:.3g}")
         if name not in self.resolution:
             return None
         lvl, seen = self.resolution[name]
@@ -208,6 +217,123 @@ def half_resolution_views(vi: np.ndarray, pi: np.ndarray, u: np.ndarray, foot: n
             for o in obs:
                 full_rays.setdefault(int(pi[o]), []).append((u[o], foot[o]))
     return out
+
+
+# --depth-resolution auto: a chosen view whose depth map at half the working resolution still has a pixel footprint
+# at most the one the fused mesh's voxel asks for (``mesh_levels``: the voxel under the fusion's memory budget, over
+# its voxel footprints) gets it at half resolution: a finer map resolves what the mesh does not keep (on 119
+# photos at 1600 px, the 2 GB default budget's mesh keeps a voxel of about 4 footprints of the full maps)
+MESH_LEVEL_SCALE = 2.0
+
+
+def map_footprint(depth: np.ndarray, cost: np.ndarray, working) -> float | None:
+    """A coarse depth map's pixel footprint at its view's working resolution (``working``): the median depth of
+    the pixels with a cost below ``COARSE_MAX_COST`` in its central window (half its width and height; the whole
+    map when that holds under 5% of them) over the working focal length, as the fusion measures footprints."""
+    ok = (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
+    H, W = depth.shape
+    centre = ok[H // 4:H - H // 4, W // 4:W - W // 4]
+    z = depth[H // 4:H - H // 4, W // 4:W - W // 4][centre]
+    if z.size < 0.05 * centre.size:
+        z = depth[ok]
+    if not z.size:
+        return None
+    return float(np.median(z)) / (0.5 * (working.intrinsics.fx + working.intrinsics.fy))
+
+
+PLAN_SAMPLES_PER_VIEW = 20000  # pixels of each coarse map checked against its sources for the mesh's plan
+
+
+def confirmed_surface(maps: dict, sources: dict, need: int) -> dict:
+    """The coarse maps ``maps`` (view name -> (view at the coarse level, depth, normal, cost)) with depth kept only
+    at about ``PLAN_SAMPLES_PER_VIEW`` pixels a view (a regular grid) whose cost is below ``COARSE_MAX_COST`` and
+    whose depth at least ``need`` of the view's ``sources`` (view name -> source names; fewer when it has fewer)
+    confirm within ``COARSE_DEPTH_TOL_PX`` of their pixel footprint: the surface the geometric filter will keep,
+    without the unconfirmed depths of textureless background that would swell a plan of the mesh's size."""
+    out = {}
+    for name, (lv, depth, normal, cost) in maps.items():
+        ok = (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
+        step = max(1, int(np.sqrt(ok.sum() / PLAN_SAMPLES_PER_VIEW)))
+        grid = np.zeros_like(ok)
+        grid[::step, ::step] = True
+        rows, cols = np.nonzero(ok & grid)
+        z = depth[rows, cols].astype(np.float64)
+        X = lv.intrinsics.pixel_rays(np.stack([cols, rows], 1).astype(np.float64)) * z[:, None]
+        T = lv.cam_from_world
+        P = (X - T[:3, 3]) @ T[:3, :3]  # world
+        srcs = [s for s in sources.get(name, ()) if s in maps]
+        count = np.zeros(len(z), np.int64)
+        for src in srcs:
+            sv, sd = maps[src][0], maps[src][1]
+            S = sv.cam_from_world
+            Q = P @ S[:3, :3].T + S[:3, 3]
+            zs = Q[:, 2]
+            front = zs > 1e-12
+            u = np.full(len(zs), -1, np.int64)
+            v = np.full(len(zs), -1, np.int64)
+            u[front] = np.floor(sv.intrinsics.fx * Q[front, 0] / zs[front] + sv.intrinsics.cx + 0.5)
+            v[front] = np.floor(sv.intrinsics.fy * Q[front, 1] / zs[front] + sv.intrinsics.cy + 0.5)
+            inside = front & (u >= 0) & (v >= 0) & (u < sd.shape[1]) & (v < sd.shape[0])
+            d = np.zeros(len(zs))
+            d[inside] = sd[v[inside], u[inside]]
+            tol = COARSE_DEPTH_TOL_PX * zs / (0.5 * (sv.intrinsics.fx + sv.intrinsics.fy))
+            count += inside & (d > 0) & (np.abs(d - zs) <= tol)
+        keep = count >= min(need, len(srcs))
+        kept = np.zeros_like(depth)
+        kept[rows[keep], cols[keep]] = depth[rows[keep], cols[keep]]
+        out[name] = (lv, kept, normal, cost)
+    return out
+
+
+def mesh_levels(choice: ViewChoice, working: dict, maps: dict, need: float) -> ViewChoice:
+    """``choice`` with its chosen views whose half-resolution depth map has a footprint of at most ``need`` (the
+    one the fused mesh's voxel asks for) at half resolution (``ViewChoice.mesh_half``); ``working``: view name ->
+    the view at its working resolution, ``maps``: view name -> (view at the coarse level, depth, normal, cost)."""
+    half = {}
+    for name in choice.chosen:
+        if name in maps and name in working:
+            f0 = map_footprint(maps[name][1], maps[name][3], working[name])
+            if f0 is not None and MESH_LEVEL_SCALE * f0 <= need:
+                half[name] = f0
+    return replace(choice, mesh_footprint=float(need), mesh_half=half)
+
+
+# the first look (``run_mvs``'s ``on_coarse``) of a capture with at least FIRST_LOOK_SPLIT_MIN views comes from the
+# coarse maps of a spread share of them (FIRST_LOOK_SHARE, at least FIRST_LOOK_MIN_VIEWS), computed before the others:
+# on 119 photos the preview is there after a quarter of the coarse round instead of all of it
+FIRST_LOOK_SPLIT_MIN = 40
+FIRST_LOOK_SHARE = 0.25
+FIRST_LOOK_MIN_VIEWS = 20
+
+
+def spread_views(views: list, count: int) -> list[int]:
+    """Indices (ascending) of ``count`` of ``views`` spread over the capture: farthest-point sampling over the
+    camera centres (scaled by their spread) and viewing directions, from the view nearest the mean of both.
+    Deterministic; all indices when ``count`` >= the number of views."""
+    n = len(views)
+    if count >= n:
+        return list(range(n))
+    C = np.array([v.center for v in views], np.float64)
+    axis = np.array([v.cam_from_world[2, :3] for v in views], np.float64)  # the optical axis in the world
+    spread = float(np.sqrt(((C - C.mean(0)) ** 2).sum(1).mean())) or 1.0
+    F = np.hstack([C / spread, axis])
+    picked = [int(np.argmin(((F - F.mean(0)) ** 2).sum(1)))]
+    d = ((F - F[picked[0]]) ** 2).sum(1)
+    while len(picked) < count:
+        k = int(np.argmax(d))
+        picked.append(k)
+        d = np.minimum(d, ((F - F[k]) ** 2).sum(1))
+    return sorted(picked)
+
+
+def first_look_views(views: list) -> list[int]:
+    """The views whose coarse maps make the first look, computed first (``spread_views``): a spread
+    ``FIRST_LOOK_SHARE`` of a capture of at least ``FIRST_LOOK_SPLIT_MIN`` views (at least ``FIRST_LOOK_MIN_VIEWS``);
+    every view of a smaller one."""
+    n = len(views)
+    if n < FIRST_LOOK_SPLIT_MIN:
+        return list(range(n))
+    return spread_views(views, max(FIRST_LOOK_MIN_VIEWS, int(round(FIRST_LOOK_SHARE * n))))
 
 
 # --depth-views coarse: the surface from PatchMatch's coarsest round

@@ -13,7 +13,7 @@ from ..cameras import camera_center
 from ..errors import BadArgumentError, NoDepthError
 from ..resources import available_bytes
 from .config import DepthFrame, FusionConfig, _BLOCK_RES, _BYTES_PER_VOXEL, budget_share
-from .frames import _sample_depth_points, pixel_footprint, scene_diagonal
+from .frames import DEPTH_LEVEL, _sample_depth_points, pixel_footprint, scene_diagonal
 from .grid import _cell_keys
 
 log = logging.getLogger("photorecon")
@@ -64,13 +64,14 @@ def _grid_bytes(frames: list[DepthFrame], voxel: float, trunc_voxels: float) -> 
     return n_blocks, n_blocks * _BLOCK_RES ** 3 * _BYTES_PER_VOXEL * 2  # hash map and extraction buffers
 
 def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
-                    sparse_points: np.ndarray | None = None) -> tuple[float, int]:
+                    sparse_points: np.ndarray | None = None, say: bool = True) -> tuple[float, int]:
     """The TSDF voxel size and the estimated number of voxel blocks.
 
     ``cfg.voxel_size`` when given (refused, naming the memory it needs, when the grid would not fit);
     else ``cfg.voxel_footprints`` pixel footprints (``pixel_footprint``), or the scene diagonal /
     ``cfg.voxels_across`` when that is set. An automatic voxel is coarsened, with a warning stating the voxel
-    chosen, only when its grid would exceed ``cfg.memory_limit_gb`` (default 60% of the available memory)."""
+    chosen, only when its grid would exceed ``cfg.memory_limit_gb`` (default 60% of the available memory), or
+    the mesh ``cfg.memory_gb``'s share (``say``: False for a plan, which warns of nothing)."""
     limit = cfg.memory_limit_gb * (1 << 30) if cfg.memory_limit_gb else 0.6 * _available_bytes()
     if cfg.voxel_size is not None:
         voxel = float(cfg.voxel_size)
@@ -104,7 +105,7 @@ def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
     else:
         raise BadArgumentError(f"no voxel size up to {voxel:.4g} fits the grid in {limit / 2**30:.1f} GB; "
                                "set --memory-limit-gb or --voxel-size")
-    if voxel != first:
+    if voxel != first and say:
         log.warning("tsdf: a %.4g voxel would need more than the %.1f GB allowed; coarsened to voxel %.4g "
                     "(%d blocks, about %.1f GB; --voxel-size or --memory-limit-gb to choose)", first,
                     limit / 2**30, voxel, n_blocks, need / 2**30)
@@ -120,8 +121,49 @@ def tsdf_voxel_size(frames: list[DepthFrame], cfg: FusionConfig,
             faces = estimate_faces(frames, voxel)
         if voxel != first:
             n_blocks, _ = _grid_bytes(frames, voxel, cfg.trunc_voxels)
+        if voxel != first and say:
             log.warning("tsdf: a %.4g voxel would make a mesh of about %.1f M faces, more than --memory-gb "
                         "%.3g GB holds; coarsened to voxel %.4g (about %.1f M faces; a larger --memory-gb "
                         "keeps the finer voxel)", first, estimate_faces(frames, first) / 1e6, cfg.memory_gb, voxel,
                         faces / 1e6)
     return voxel, n_blocks
+
+
+# the settings that set the voxel (``tsdf_voxel_size``), which ``planned_footprint`` plans the depth maps for
+VOXEL_SETTINGS = ("mesher", "watertight", "voxel_size", "voxel_footprints", "voxels_across", "memory_gb",
+                  "memory_limit_gb")
+
+
+def voxel_settings(cfg: FusionConfig) -> dict:
+    """The values of ``VOXEL_SETTINGS`` in ``cfg``."""
+    return {k: getattr(cfg, k) for k in VOXEL_SETTINGS}
+
+
+# a coarse depth map's pixel counts as surface for the planned voxel when its matching cost (1 - NCC) is below this
+PLAN_MAX_COST = 0.5
+
+
+def planned_footprint(maps: dict, working: dict, cfg: FusionConfig) -> float | None:
+    """The pixel footprint (scene units) that the fused mesh's voxel asks of the depth maps, planned before they
+    exist: the voxel ``tsdf_voxel_size`` would choose (``cfg.voxel_footprints`` footprints at the working
+    resolution, coarsened for ``cfg.memory_gb``'s mesh share; or ``--voxel-size`` / ``--voxels-across``) for the
+    surface of the coarse depth maps ``maps`` (view name -> (view at the map's resolution, depth, normal, cost);
+    ``working``: view name -> the view at its working resolution), over ``cfg.voxel_footprints``: a depth map
+    with a finer footprint resolves more than the mesh keeps. None when the mesher is not TSDF or the maps hold
+    no surface."""
+    from dataclasses import replace
+
+    if cfg.mesher != "tsdf" or cfg.watertight:
+        return None
+    frames = []
+    for name, (lv, depth, _, cost) in maps.items():
+        d = np.where((cost < PLAN_MAX_COST) & np.isfinite(depth), depth, 0).astype(np.float32)
+        if name in working and np.any(d > 0):
+            level = np.log2(working[name].intrinsics.width / lv.intrinsics.width)
+            frames.append(DepthFrame(view=replace(lv, extra={**lv.extra, DEPTH_LEVEL: level}), depth=d))
+    if not frames:
+        return None
+    auto = cfg.voxel_size is None
+    voxel, _ = tsdf_voxel_size(frames, replace(cfg, memory_limit_gb=cfg.memory_limit_gb or 1e6) if auto else cfg,
+                               say=False)
+    return voxel / cfg.voxel_footprints

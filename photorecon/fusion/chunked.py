@@ -161,7 +161,8 @@ def tsdf_fuse_chunked(dataset, frames: list[DepthFrame], cfg: FusionConfig, spar
     key = hashlib.sha256(json.dumps([str(cfg), voxel, depth_max, chunk_blocks, [stat(v) for v, _, _ in cams]],
                                     default=str).encode()).hexdigest()[:16]
     root = Path(work_dir) if work_dir else Path(dataset.depth_dir).parent / ".fusion_work"
-    ctx = _ChunkContext(dataset, cfg, cams, voxel, depth_max, chunk_blocks, root / key, resolution_weights(frames),
+    ctx = _ChunkContext(dataset, cfg, cams, voxel, depth_max, chunk_blocks, root / key,
+                        resolution_weights(frames, voxel / cfg.voxel_footprints),
                         depth_levels(dataset))
     log.debug("tsdf: voxel %.5g, %d chunks of %d^3 blocks", voxel, len(chunks), chunk_blocks)
     del frames

@@ -72,31 +72,47 @@ def pixel_footprint(frames: list[DepthFrame]) -> float:
     view's working resolution (``DEPTH_LEVEL``: a depth map the depth stage left at half resolution counts with
     half its own footprint, and does not coarsen the voxel); the median over views.
     Far background at the image borders and outlying sparse points do not move it."""
-    per_view = []
-    for f in frames:
-        H, W = f.depth.shape
-        centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
-        z = centre[centre > 0]
-        if z.size < 0.05 * centre.size:
-            z = f.depth[f.depth > 0]
-        if z.size:
-            intr = f.view.intrinsics
-            per_view.append(float(np.median(z)) / (0.5 * (intr.fx + intr.fy)) / 2 ** f.view.extra.get(DEPTH_LEVEL, 0))
+    per_view = [own / 2 ** f.view.extra.get(DEPTH_LEVEL, 0) for f in frames
+                if (own := frame_footprint(f)) is not None]
     if not per_view:
         raise NoDepthError("no valid depth in any view: nothing to fuse")
     return float(np.median(per_view))
+
+
+def frame_footprint(f: DepthFrame) -> float | None:
+    """One depth map's pixel footprint at its own resolution (``pixel_footprint``'s per view), or None without
+    valid depth."""
+    H, W = f.depth.shape
+    centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
+    z = centre[centre > 0]
+    if z.size < 0.05 * centre.size:
+        z = f.depth[f.depth > 0]
+    if not z.size:
+        return None
+    intr = f.view.intrinsics
+    return float(np.median(z)) / (0.5 * (intr.fx + intr.fy))
 
 
 DEPTH_LEVEL = "depth_level"  # View.extra of a depth frame's view: the pyramid level of its depth map below its view's
 # working resolution (the depth stage's ``mvs_report.json``, ``per_view[NAME]["resolution"]``: 1 = half), absent = 0
 
 
-def resolution_weights(frames) -> list[float]:
+def resolution_weights(frames, need: float | None = None) -> list[float]:
     """Per frame its fusion weight factor: 1 for a depth map at its view's working resolution, 4 ** -level for one
     at a coarser pyramid level (``DEPTH_LEVEL``: a view the depth stage left at half resolution, where finer views
     see its surface, weighs 0.25: its depth noise grows with its footprint), so that where both see a surface the
-    finer depths set it."""
-    return [0.25 ** f.view.extra.get(DEPTH_LEVEL, 0) for f in frames]
+    finer depths set it. ``need``: the footprint the voxel asks for (voxel / voxel footprints); a coarser map whose
+    own footprint is finer than that resolves all the mesh keeps and weighs 1 (``(need / own)**2`` in between)."""
+    out = []
+    for f in frames:
+        level = f.view.extra.get(DEPTH_LEVEL, 0)
+        w = 0.25 ** level
+        if level and need:
+            own = frame_footprint(f)
+            if own:
+                w = max(w, min(1.0, (need / own) ** 2))
+        out.append(w)
+    return out
 
 
 def depth_levels(dataset) -> dict[str, int]:

@@ -452,7 +452,7 @@ def tsdf_fuse(frames: list[DepthFrame], cfg: FusionConfig, sparse_points: np.nda
         ids = unique_rows(np.floor_divide(allb, chunk))
         boxes = [(i * chunk, (i + 1) * chunk, None) for i in ids]
     pieces = []
-    factors = resolution_weights(frames)
+    factors = resolution_weights(frames, voxel / cfg.voxel_footprints)
     for lo, hi, count in bar(boxes, desc="tsdf fusion", unit="chunk") if chunk else boxes:
         if count is None:
             count = int(_in_box(allb, lo - 1, hi + 1).sum())

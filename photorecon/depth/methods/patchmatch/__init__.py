@@ -112,18 +112,34 @@ def coarse_rounds(cfg) -> bool:
     return len(pm_rounds(cfg)) > 1
 
 
-def coarse_maps(ctx: work.MVSContext, executor) -> tuple[dict, dict]:
+def coarse_maps(ctx: work.MVSContext, executor, on_first=None) -> tuple[dict, dict]:
     """The first (coarsest) round of every planned view, as tasks. Returns the tasks' results and per view (its
     view at that round's resolution, depth, normal, cost); the maps stay in the work folder, where the chosen
-    views' next round reads them."""
+    views' next round reads them. ``on_first(maps)``: called with the maps of the views computed first, a spread
+    share of a large capture's (``views.first_look_views``; all of a small one's), before the others are."""
+    from ...views import first_look_views
     from .solver import level_view, pm_rounds
 
     names = list(ctx.plan)
     from ...graph import run_task as graph_task
 
-    results = executor.run(graph_task, [Task(f"pm0:{n}", (NAME, n, 0)) for n in names], ctx,
-                           desc=f"mvs coarse depth ({len(names)} views)", unit="task")
     level = pm_rounds(ctx.cfg)[0][0]
-    maps = {n: (level_view(ctx.plan[n][0], level), *(work.load(_round_file(ctx, 0, n, what))
-                                                     for what in ("depth", "normal", "cost"))) for n in names}
-    return results, maps
+
+    def maps_of(batch):
+        return {n: (level_view(ctx.plan[n][0], level), *(work.load(_round_file(ctx, 0, n, what))
+                                                         for what in ("depth", "normal", "cost"))) for n in batch}
+
+    first = [names[k] for k in first_look_views([ctx.plan[n][0] for n in names])] if on_first else names
+    rest = [n for n in names if n not in set(first)]
+    results = {}
+    for batch in (first, rest):
+        if not batch:
+            continue
+        desc = (f"mvs coarse depth ({len(names)} views)" if len(batch) == len(names) else
+                f"mvs coarse depth (first look: {len(batch)} of {len(names)} views)" if batch is first else
+                f"mvs coarse depth (the other {len(batch)} views)")
+        results.update(executor.run(graph_task, [Task(f"pm0:{n}", (NAME, n, 0)) for n in batch], ctx, desc=desc,
+                                    unit="task"))
+        if batch is first and on_first is not None:
+            on_first(maps_of(first))
+    return results, maps_of(names)
