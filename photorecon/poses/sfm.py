@@ -42,7 +42,11 @@ log = logging.getLogger("photorecon")
 
 
 # --mapper auto maps globally from this many images: on 200 synthetic views GLOMAP was more accurate than
-# incremental mapping with every matching (0.057-0.076 deg vs 0.078-0.102) at 0.9-1.7x its time (bench_sfm.py --large)
+# incremental mapping with every matching (0.057-0.076 deg vs 0.078-0.102) at 0.9-1.7x its time (bench_sfm.py
+# --large, 2026-11-23). On real photos it is not yet safe lower down: on gold_cape's 119 handheld photos (same
+# matches, tools/bench_mappers.py, 2026-11-29, 2-core host, shared) it placed 118 at a mean rotation error of
+# 17.9 degrees (two runs alike; 183-197 CPU s) against 0.087 for incremental mapping (118; 281 CPU s): see
+# docs/benchmarks.md, "Structure from motion, large sets".
 GLOBAL_MIN = 200
 
 # --matching retrieval: photos retrieved per photo (--retrieval-neighbors)
