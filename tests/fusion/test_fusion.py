@@ -955,6 +955,6 @@ def test_coarser_depth_maps_weigh_less_and_leave_the_voxel(frames, gt, monkeypat
     assert fr.resolution_weights(mixed) == [0.25 if i % 2 else 1.0 for i in range(len(mixed))]
     assert pixel_footprint(mixed) == pytest.approx(pixel_footprint(frames), rel=0.02)
     weighted = mesh_metrics(fuse(mixed, FusionConfig()), gt, n_samples=20_000)
-    monkeypatch.setattr("photorecon.fusion.tsdf.resolution_weights", lambda frames: [1.0] * len(frames))
+    monkeypatch.setattr("photorecon.fusion.tsdf.resolution_weights", lambda frames, need=None: [1.0] * len(frames))
     equal = mesh_metrics(fuse(mixed, FusionConfig()), gt, n_samples=20_000)
     assert weighted.accuracy_mean < 0.5 * equal.accuracy_mean, (weighted.accuracy_mean, equal.accuracy_mean)
