@@ -341,6 +341,22 @@ def backproject_pixels(uv, z, intrinsics: Intrinsics, cam_from_world) -> np.ndar
     return pts_cam @ world_from_cam[:3, :3].T + world_from_cam[:3, 3]
 
 
+def depth_footprint(depth, intrinsics: Intrinsics) -> float | None:
+    """A depth map's pixel footprint in scene units: the median of its positive depths in its central window (half
+    its width and height; the whole map when that window holds under 5% of such pixels) over the mean focal length
+    of ``intrinsics`` (the map's own, or another resolution's for the footprint there); None without a positive
+    depth. Far background at the image borders does not move it."""
+    depth = np.asarray(depth)
+    H, W = depth.shape
+    centre = depth[H // 4:H - H // 4, W // 4:W - W // 4]
+    z = centre[centre > 0]
+    if z.size < 0.05 * centre.size:
+        z = depth[depth > 0]
+    if not z.size:
+        return None
+    return float(np.median(z)) / (0.5 * (intrinsics.fx + intrinsics.fy))
+
+
 def valid_depth_mask(depth) -> np.ndarray:
     """Pixels with a usable depth: finite and > 0."""
     d = np.asarray(depth)

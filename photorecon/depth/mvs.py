@@ -214,7 +214,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     if coarse:
         coarse_results, coarse_choice, maps = _coarse_choice(ctx, ex, on_coarse)
         if mesh_footprint is not None and cfg.depth_resolution == "auto":
-            working = {n: ctx.plan[n][0] for n in maps if n in ctx.plan}
+            working = {n: ctx.plan[n][0] for n in maps}
             surface = confirmed_surface(maps, {n: ctx.plan[n][1] for n in working}, max(1, cfg.min_consistent))
             need = mesh_footprint(surface, working)
             if need:

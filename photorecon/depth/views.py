@@ -19,6 +19,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..cameras import backproject_pixels, depth_footprint
+
 log = logging.getLogger("photorecon")
 
 MAX_VIEW_ANGLE_DEG = 60.0  # a view sees a point well within this angle of the point's mean viewing direction
@@ -227,18 +229,9 @@ MESH_LEVEL_SCALE = 2.0
 
 
 def map_footprint(depth: np.ndarray, cost: np.ndarray, working) -> float | None:
-    """A coarse depth map's pixel footprint at its view's working resolution (``working``): the median depth of
-    the pixels with a cost below ``COARSE_MAX_COST`` in its central window (half its width and height; the whole
-    map when that holds under 5% of them) over the working focal length, as the fusion measures footprints."""
-    ok = (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
-    H, W = depth.shape
-    centre = ok[H // 4:H - H // 4, W // 4:W - W // 4]
-    z = depth[H // 4:H - H // 4, W // 4:W - W // 4][centre]
-    if z.size < 0.05 * centre.size:
-        z = depth[ok]
-    if not z.size:
-        return None
-    return float(np.median(z)) / (0.5 * (working.intrinsics.fx + working.intrinsics.fy))
+    """A coarse depth map's pixel footprint at its view's working resolution (``working``), over the pixels with a
+    cost below ``COARSE_MAX_COST``, as the fusion measures footprints (``cameras.depth_footprint``)."""
+    return depth_footprint(np.where(_surface(depth, cost), depth, 0), working.intrinsics)
 
 
 PLAN_SAMPLES_PER_VIEW = 20000  # pixels of each coarse map checked against its sources for the mesh's plan
@@ -252,32 +245,15 @@ def confirmed_surface(maps: dict, sources: dict, need: int) -> dict:
     without the unconfirmed depths of textureless background that would swell a plan of the mesh's size."""
     out = {}
     for name, (lv, depth, normal, cost) in maps.items():
-        ok = (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
-        step = max(1, int(np.sqrt(ok.sum() / PLAN_SAMPLES_PER_VIEW)))
-        grid = np.zeros_like(ok)
-        grid[::step, ::step] = True
-        rows, cols = np.nonzero(ok & grid)
-        z = depth[rows, cols].astype(np.float64)
-        X = lv.intrinsics.pixel_rays(np.stack([cols, rows], 1).astype(np.float64)) * z[:, None]
-        T = lv.cam_from_world
-        P = (X - T[:3, 3]) @ T[:3, :3]  # world
+        rows, cols, _ = _grid_pixels(_surface(depth, cost), PLAN_SAMPLES_PER_VIEW)
+        P = backproject_pixels(np.stack([cols, rows], 1), depth[rows, cols], lv.intrinsics, lv.cam_from_world)
         srcs = [s for s in sources.get(name, ()) if s in maps]
-        count = np.zeros(len(z), np.int64)
+        count = np.zeros(len(rows), np.int64)
         for src in srcs:
-            sv, sd = maps[src][0], maps[src][1]
-            S = sv.cam_from_world
-            Q = P @ S[:3, :3].T + S[:3, 3]
-            zs = Q[:, 2]
-            front = zs > 1e-12
-            u = np.full(len(zs), -1, np.int64)
-            v = np.full(len(zs), -1, np.int64)
-            u[front] = np.floor(sv.intrinsics.fx * Q[front, 0] / zs[front] + sv.intrinsics.cx + 0.5)
-            v[front] = np.floor(sv.intrinsics.fy * Q[front, 1] / zs[front] + sv.intrinsics.cy + 0.5)
-            inside = front & (u >= 0) & (v >= 0) & (u < sd.shape[1]) & (v < sd.shape[0])
-            d = np.zeros(len(zs))
-            d[inside] = sd[v[inside], u[inside]]
+            sv = maps[src][0]
+            idx, zs, d = _look_up(sv, maps[src][1], P)
             tol = COARSE_DEPTH_TOL_PX * zs / (0.5 * (sv.intrinsics.fx + sv.intrinsics.fy))
-            count += inside & (d > 0) & (np.abs(d - zs) <= tol)
+            count[idx[(d > 0) & (np.abs(d - zs) <= tol)]] += 1
         keep = count >= min(need, len(srcs))
         kept = np.zeros_like(depth)
         kept[rows[keep], cols[keep]] = depth[rows[keep], cols[keep]]
@@ -357,17 +333,41 @@ def wants_coarse_cover(sparse: ViewChoice | None, cfg) -> bool:
     return cfg.depth_views == "auto" and len(sparse.chosen) >= COARSE_MIN_VIEWS
 
 
-def _coarse_samples(lv, depth: np.ndarray, normal: np.ndarray, cost: np.ndarray):
-    """World points and unit normals (towards the camera) of about ``COARSE_SAMPLES_PER_VIEW`` pixels of a coarse
-    depth map whose cost is below ``COARSE_MAX_COST``, and the spacing of those samples on the surface."""
-    ok = (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
-    n_ok = int(ok.sum())
-    if not n_ok:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.inf
-    step = max(1, int(np.sqrt(n_ok / COARSE_SAMPLES_PER_VIEW)))
+def _surface(depth: np.ndarray, cost: np.ndarray) -> np.ndarray:
+    """A coarse map's surface pixels: a finite positive depth matched at a cost below ``COARSE_MAX_COST``."""
+    return (depth > 0) & np.isfinite(depth) & (cost < COARSE_MAX_COST)
+
+
+def _grid_pixels(ok: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Rows and columns of about ``count`` of the ``ok`` pixels, on a regular grid, and the grid's step."""
+    step = max(1, int(np.sqrt(ok.sum() / count)))
     grid = np.zeros_like(ok)
     grid[::step, ::step] = True
     rows, cols = np.nonzero(ok & grid)
+    return rows, cols, step
+
+
+def _look_up(lv, D: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Of world points ``P``: the indices of those in front of view ``lv`` whose nearest pixel lies in its map
+    ``D``, their depth in that view, and ``D`` at that pixel."""
+    T, intr = lv.cam_from_world, lv.intrinsics
+    Pc = P @ T[:3, :3].T + T[:3, 3]
+    z = Pc[:, 2]
+    front = np.flatnonzero(z > 1e-12)
+    uu = np.floor(intr.fx * Pc[front, 0] / z[front] + intr.cx + 0.5).astype(np.int64)
+    vv = np.floor(intr.fy * Pc[front, 1] / z[front] + intr.cy + 0.5).astype(np.int64)
+    inside = (uu >= 0) & (vv >= 0) & (uu < intr.width) & (vv < intr.height)
+    idx = front[inside]
+    return idx, z[idx], D[vv[inside], uu[inside]]
+
+
+def _coarse_samples(lv, depth: np.ndarray, normal: np.ndarray, cost: np.ndarray):
+    """World points and unit normals (towards the camera) of about ``COARSE_SAMPLES_PER_VIEW`` pixels of a coarse
+    depth map whose cost is below ``COARSE_MAX_COST``, and the spacing of those samples on the surface."""
+    ok = _surface(depth, cost)
+    if not ok.any():
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.inf
+    rows, cols, step = _grid_pixels(ok, COARSE_SAMPLES_PER_VIEW)
     z = depth[rows, cols].astype(np.float64)
     ray = lv.intrinsics.pixel_rays(np.stack([cols, rows], 1).astype(np.float64))
     n = normal[rows, cols].astype(np.float64)
@@ -416,18 +416,9 @@ def coarse_depth_views(views: list, maps: dict, cfg) -> ViewChoice:
     for k, v in enumerate(views):
         if v.name not in maps:
             continue
-        lv, D = maps[v.name][0], maps[v.name][1]
-        T = lv.cam_from_world
-        Pc = P @ T[:3, :3].T + T[:3, 3]
-        z = Pc[:, 2]
-        front = np.flatnonzero(z > 1e-12)
+        lv = maps[v.name][0]
         intr = lv.intrinsics
-        uu = np.floor(intr.fx * Pc[front, 0] / z[front] + intr.cx + 0.5).astype(np.int64)
-        vv = np.floor(intr.fy * Pc[front, 1] / z[front] + intr.cy + 0.5).astype(np.int64)
-        inside = (uu >= 0) & (vv >= 0) & (uu < intr.width) & (vv < intr.height)
-        idx, uu, vv = front[inside], uu[inside], vv[inside]
-        d = D[vv, uu]
-        zf = z[idx]
+        idx, zf, d = _look_up(lv, maps[v.name][1], P)
         tol = COARSE_DEPTH_TOL_PX * zf / (0.5 * (intr.fx + intr.fy))
         confirmed += np.bincount(idx[(d > 0) & (np.abs(d - zf) <= tol)], minlength=len(P))
         seen = (d <= 0) | (zf <= d + tol)  # not behind the surface the view's own coarse depth shows there

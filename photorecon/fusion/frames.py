@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import View, backproject_pixels, valid_depth_mask
+from ..cameras import View, backproject_pixels, depth_footprint, valid_depth_mask
 from ..errors import BadArgumentError, InputDataError, NoDepthError
 from .config import DepthFrame, FusionConfig
 
@@ -80,17 +80,9 @@ def pixel_footprint(frames: list[DepthFrame]) -> float:
 
 
 def frame_footprint(f: DepthFrame) -> float | None:
-    """One depth map's pixel footprint at its own resolution (``pixel_footprint``'s per view), or None without
-    valid depth."""
-    H, W = f.depth.shape
-    centre = f.depth[H // 4:H - H // 4, W // 4:W - W // 4]
-    z = centre[centre > 0]
-    if z.size < 0.05 * centre.size:
-        z = f.depth[f.depth > 0]
-    if not z.size:
-        return None
-    intr = f.view.intrinsics
-    return float(np.median(z)) / (0.5 * (intr.fx + intr.fy))
+    """One depth map's pixel footprint at its own resolution (``pixel_footprint``'s per view,
+    ``cameras.depth_footprint``), or None without valid depth."""
+    return depth_footprint(f.depth, f.view.intrinsics)
 
 
 DEPTH_LEVEL = "depth_level"  # View.extra of a depth frame's view: the pyramid level of its depth map below its view's

@@ -130,7 +130,8 @@ def coarse_maps(ctx: work.MVSContext, executor, on_first=None) -> tuple[dict, di
                                                          for what in ("depth", "normal", "cost"))) for n in batch}
 
     first = [names[k] for k in first_look_views([ctx.plan[n][0] for n in names])] if on_first else names
-    rest = [n for n in names if n not in set(first)]
+    picked = set(first)
+    rest = [n for n in names if n not in picked]
     results = {}
     for batch in (first, rest):
         if not batch:
