@@ -139,28 +139,24 @@ def voxel_settings(cfg: FusionConfig) -> dict:
     return {k: getattr(cfg, k) for k in VOXEL_SETTINGS}
 
 
-# a coarse depth map's pixel counts as surface for the planned voxel when its matching cost (1 - NCC) is below this
-PLAN_MAX_COST = 0.5
-
-
 def planned_footprint(maps: dict, working: dict, cfg: FusionConfig) -> float | None:
     """The pixel footprint (scene units) that the fused mesh's voxel asks of the depth maps, planned before they
     exist: the voxel ``tsdf_voxel_size`` would choose (``cfg.voxel_footprints`` footprints at the working
     resolution, coarsened for ``cfg.memory_gb``'s mesh share; or ``--voxel-size`` / ``--voxels-across``) for the
-    surface of the coarse depth maps ``maps`` (view name -> (view at the map's resolution, depth, normal, cost);
-    ``working``: view name -> the view at its working resolution), over ``cfg.voxel_footprints``: a depth map
-    with a finer footprint resolves more than the mesh keeps. None when the mesher is not TSDF or the maps hold
-    no surface."""
+    surface of the coarse depth maps ``maps`` (view name -> (view at the map's resolution, depth, normal, cost),
+    depth 0 off the surface: ``depth.views.confirmed_surface``; ``working``: view name -> the view at its working
+    resolution), over ``cfg.voxel_footprints``: a depth map with a finer footprint resolves more than the mesh
+    keeps. None when the mesher is not TSDF or the maps hold no surface."""
     from dataclasses import replace
 
     if cfg.mesher != "tsdf" or cfg.watertight:
         return None
     frames = []
-    for name, (lv, depth, _, cost) in maps.items():
-        d = np.where((cost < PLAN_MAX_COST) & np.isfinite(depth), depth, 0).astype(np.float32)
-        if name in working and np.any(d > 0):
+    for name, (lv, depth, _, _) in maps.items():
+        if name in working and np.any(depth > 0):
             level = np.log2(working[name].intrinsics.width / lv.intrinsics.width)
-            frames.append(DepthFrame(view=replace(lv, extra={**lv.extra, DEPTH_LEVEL: level}), depth=d))
+            frames.append(DepthFrame(view=replace(lv, extra={**lv.extra, DEPTH_LEVEL: level}),
+                                     depth=np.asarray(depth, np.float32)))
     if not frames:
         return None
     auto = cfg.voxel_size is None
