@@ -204,18 +204,9 @@ def model_frame(mesh: trimesh.Trimesh, views: list[View], fusion: dict | None = 
     is wrong for a rig whose cameras hang upside down."""
     fusion = fusion if isinstance(fusion, dict) else {}
     scale = scale if isinstance(scale, dict) else {}
-    meta = {k: v for k, v in (getattr(mesh, "metadata", None) or {}).items()
+    # the cleaning's facts as the mesh carries them, or as the fusion stage recorded them (a mesh read from disk)
+    meta = {k: v for src in (getattr(mesh, "metadata", None) or {}, fusion) for k, v in src.items()
             if k in ("scene", "support_normal", "support_offset", "voxel_size")}
-    scene = fusion.get("scene")
-    if isinstance(scene, dict):
-        meta["scene"] = {"detected": scene.get("detected")}
-        removed = scene.get("support_removed")
-        if isinstance(removed, dict) and "support_normal" in removed and "support_offset" in removed:
-            meta.update(support_normal=removed["support_normal"], support_offset=removed["support_offset"])
-    if "support_normal" in fusion and "support_offset" in fusion:
-        meta.update(support_normal=fusion["support_normal"], support_offset=fusion["support_offset"])
-    if isinstance(fusion.get("voxel_size"), (int, float)) and fusion["voxel_size"] > 0:
-        meta["voxel_size"] = float(fusion["voxel_size"])
     bare = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     bare.metadata = meta
     units = "metres" if scale.get("units") == "metre" else "scene units (the reconstruction's, not metric)"
