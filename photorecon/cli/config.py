@@ -37,11 +37,12 @@ class _Given:
 
     def __call__(self, parser, namespace, values, option_string=None):
         super().__call__(parser, namespace, values, option_string)  # type: ignore[misc]
-        given = getattr(namespace, "_given", None)
-        if given is None:
-            given = set()
-            setattr(namespace, "_given", given)
-        given.add(self.dest)
+        _kept(namespace, "_given", set).add(self.dest)
+
+
+def _kept(namespace: argparse.Namespace, name: str, make):
+    """The collection ``namespace.<name>`` that the actions add to, made by ``make`` on first use."""
+    return vars(namespace).setdefault(name, make())
 
 
 class _Store(_Given, argparse._StoreAction):
@@ -81,27 +82,15 @@ class _RenamedToValue(argparse.Action):
             new = None  # the default: nothing to set
         else:
             force(namespace, self.dest, self.value)
-        renamed = getattr(namespace, "_renamed", None)
-        if renamed is None:
-            renamed = []
-            setattr(namespace, "_renamed", renamed)
-        renamed.append((option_string, new, self.dest))
+        _kept(namespace, "_renamed", list).append((option_string, new, self.dest))
 
 
 def force(namespace: argparse.Namespace, dest: str, value) -> None:
     """Set ``dest`` to ``value`` whatever else the command line or a settings file says (a former boolean flag,
     ``_RenamedToValue``), and record it as given."""
     setattr(namespace, dest, value)
-    forced = getattr(namespace, "_forced", None)
-    if forced is None:
-        forced = {}
-        setattr(namespace, "_forced", forced)
-    forced[dest] = value
-    given_ = getattr(namespace, "_given", None)
-    if given_ is None:
-        given_ = set()
-        setattr(namespace, "_given", given_)
-    given_.add(dest)
+    _kept(namespace, "_forced", dict)[dest] = value
+    _kept(namespace, "_given", set).add(dest)
 
 
 class _Renamed(_Store):
@@ -113,11 +102,7 @@ class _Renamed(_Store):
     def __call__(self, parser, namespace, values, option_string=None):
         super().__call__(parser, namespace, values, option_string)
         new = self.new_prefixed if option_string and "." in option_string else self.new_plain
-        renamed = getattr(namespace, "_renamed", None)
-        if renamed is None:
-            renamed = []
-            setattr(namespace, "_renamed", renamed)
-        renamed.append((option_string, new, self.dest))
+        _kept(namespace, "_renamed", list).append((option_string, new, self.dest))
 
 
 def given(args: argparse.Namespace) -> set[str]:
