@@ -59,6 +59,33 @@ def photorecon_imports(path, root):
     return found
 
 
+def coarse_maps(renderer, views, wrong: float = 0.03, background=None, relative: bool = False,
+                background_cost: float = 1.0, normals: bool = False, seed: int = 0) -> dict:
+    """Per view a depth map as PatchMatch's coarsest round gives it (a quarter of the resolution): view name ->
+    (view at that level, depth, camera-frame normal, cost). The rendered z-depth with 0.3% noise, a fraction
+    ``wrong`` of the surface's pixels at a random depth (0.5-2x; matched well all the same) at cost 0.2; off the
+    surface depth 0, or uniform in ``background`` (times the view's median surface depth when ``relative``), at
+    cost ``background_cost``; the true normals with ``normals``, else zero."""
+    import numpy as np
+
+    from photorecon.depth.methods.patchmatch.solver import level_view
+
+    rng = np.random.default_rng(seed)
+    maps = {}
+    for v in views:
+        lv = level_view(v, 2)
+        r = renderer.render(lv)
+        d = (r.depth * (1 + 0.003 * rng.standard_normal(r.depth.shape))).astype(np.float32)
+        bad = r.mask & (rng.random(r.depth.shape) < wrong)
+        d[bad] = rng.uniform(0.5, 2.0, bad.sum()) * d[bad]
+        if background is not None:
+            scale = float(np.median(r.depth[r.mask])) if relative else 1.0
+            d[~r.mask] = rng.uniform(background[0] * scale, background[1] * scale, (~r.mask).sum())
+        n = (r.normal @ lv.cam_from_world[:3, :3].T).astype(np.float32) if normals else np.zeros(d.shape + (3,), np.float32)
+        maps[v.name] = (lv, d, n, np.where(r.mask, 0.2, background_cost).astype(np.float32))
+    return maps
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _quiet_progress():
     from photorecon import progress

@@ -148,6 +148,13 @@ def test_a_former_flag_still_works_and_names_the_new_one(parser, caplog, command
 ])
 def test_a_former_settings_file_key_still_works_and_names_the_new_one(parser, caplog, tmp_path, text, old, new,
                                                                       where):
+    f, cfgs, messages = _reconstruct_with_settings_file(parser, caplog, tmp_path, text)
+    assert getattr(getattr(cfgs, where[0]), where[1]) == where[2]
+    assert messages == [f"--config {f}: {old} is now {new} (the former name still works, for now)"]
+
+
+def _reconstruct_with_settings_file(parser, caplog, tmp_path, text: str):
+    """``reconstruct I -o O --config FILE`` with ``text`` in FILE: (FILE, the configs, the warnings logged)."""
     import logging
 
     from photorecon.cli.settings import apply_settings_file
@@ -158,9 +165,7 @@ def test_a_former_settings_file_key_still_works_and_names_the_new_one(parser, ca
     with caplog.at_level(logging.WARNING, logger="photorecon"):
         apply_settings_file(parser.command_parser("reconstruct"), args, f)
         cfgs = _configs_of(args)
-    assert getattr(getattr(cfgs, where[0]), where[1]) == where[2]
-    assert [r.getMessage() for r in caplog.records] == [
-        f"--config {f}: {old} is now {new} (the former name still works, for now)"]
+    return f, cfgs, [r.getMessage() for r in caplog.records]
 
 
 @pytest.mark.parametrize("command, old, new", [
@@ -202,18 +207,11 @@ def test_the_former_object_flag_is_scene_object(parser, caplog, command, old, ne
     ("object = false\n", "auto", "object = false is the default now and changes nothing (the setting is scene)"),
 ])
 def test_the_former_object_settings_file_key_is_scene_object(parser, caplog, tmp_path, text, scene, message):
-    import logging
-
     from photorecon.cli.settings import apply_settings_file
 
-    f = tmp_path / "s.toml"
-    f.write_text(text)
-    args = parser.parse_args(["reconstruct", "I", "-o", "O"])
-    with caplog.at_level(logging.WARNING, logger="photorecon"):
-        apply_settings_file(parser.command_parser("reconstruct"), args, f)
-        cfgs = _configs_of(args)
+    f, cfgs, messages = _reconstruct_with_settings_file(parser, caplog, tmp_path, text)
     assert cfgs.clean.scene == scene
-    assert [r.getMessage() for r in caplog.records] == [f"--config {f}: {message}"]
+    assert messages == [f"--config {f}: {message}"]
     f.write_text("object = 'yes'\n")
     with pytest.raises(BadArgumentError, match="object: expected true or false, got 'yes'"):
         apply_settings_file(parser.command_parser("reconstruct"), parser.parse_args(["reconstruct", "I", "-o", "O"]), f)

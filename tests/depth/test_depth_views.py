@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from conftest import coarse_maps
 from photorecon.cameras import View
 from photorecon.depth.mvs import MVSConfig
 from photorecon.depth.views import choose_depth_views
@@ -117,25 +118,6 @@ def test_depth_stage_and_fusion_use_only_the_chosen_views(tmp_path):
 
 
 
-def _coarse_maps(renderer, views, seed: int = 0) -> dict:
-    """Per view, a coarse depth map as PatchMatch's first round gives it (a quarter of the resolution): the
-    rendered z-depth with 0.3% noise and 3% of the pixels wrong (a random depth), the normals in the camera
-    frame, matching cost 0.2 on the surface."""
-    from photorecon.depth.methods.patchmatch.solver import level_view
-
-    rng = np.random.default_rng(seed)
-    maps = {}
-    for v in views:
-        lv = level_view(v, 2)
-        r = renderer.render(lv)
-        d = r.depth * (1 + 0.003 * rng.standard_normal(r.depth.shape)).astype(np.float32)
-        wrong = r.mask & (rng.random(r.depth.shape) < 0.03)
-        d[wrong] = rng.uniform(0.5, 2.0, wrong.sum()) * d[wrong]
-        n = r.normal @ lv.cam_from_world[:3, :3].T
-        maps[v.name] = (lv, d, n.astype(np.float32), np.where(r.mask, 0.2, 1.0).astype(np.float32))
-    return maps
-
-
 def test_coarse_depth_choice_covers_the_surface_it_hides_with_fewer_views():
     """``--depth-views coarse`` on a room of objects (a box, a sphere, a cylinder, an open cup: surfaces they hide
     from one another) seen by 100 views from above: from the coarse depth maps alone it keeps at most 40 of them
@@ -147,7 +129,7 @@ def test_coarse_depth_choice_covers_the_surface_it_hides_with_fewer_views():
     mesh = normalize_mesh(make_scene("room"))[0]
     renderer = Renderer(mesh)
     views = make_views(SynthConfig(views=100, rig="hemisphere", width=160, height=120))
-    choice = coarse_depth_views(views, _coarse_maps(renderer, views), MVSConfig(depth_views="coarse"))
+    choice = coarse_depth_views(views, coarse_maps(renderer, views, normals=True), MVSConfig(depth_views="coarse"))
     assert choice.reason == "coarse depth coverage" and choice.total == 100
     assert len(choice.chosen) <= 40, len(choice.chosen)
     pts, tri = trimesh.sample.sample_surface_even(mesh, 4000, seed=1)
@@ -243,12 +225,12 @@ def test_depth_resolution_halves_views_whose_surface_full_views_see_as_finely(re
     from photorecon.depth.views import HALF_COVERED, HALF_MAX_ANGLE_DEG, coarse_depth_views
 
     ring12 = make_views(SynthConfig(views=12, rig="ring", width=160, height=120))
-    choice = coarse_depth_views(ring12, _coarse_maps(renderer, ring12), MVSConfig(depth_views="coarse"))
+    choice = coarse_depth_views(ring12, coarse_maps(renderer, ring12, normals=True), MVSConfig(depth_views="coarse"))
     assert len(choice.chosen) == 12 and set(choice.resolution) == set(choice.chosen)
     assert all(lvl == 0 for lvl, _ in choice.resolution.values())
 
     ring = make_views(SynthConfig(views=72, rig="ring", width=160, height=120))
-    maps = _coarse_maps(renderer, ring)
+    maps = coarse_maps(renderer, ring, normals=True)
     choice = coarse_depth_views(ring, maps, MVSConfig(depth_views="coarse"))
     half = [n for n in choice.chosen if choice.level(n) == 1]
     full = [n for n in choice.chosen if choice.level(n) == 0]

@@ -6,6 +6,7 @@ Synthetic cameras, rendered depth; no image is matched."""
 import numpy as np
 import pytest
 
+from conftest import coarse_maps
 from photorecon.depth.views import (MESH_LEVEL_SCALE, confirmed_surface, first_look_views, map_footprint, mesh_levels,
                                     spread_views, ViewChoice)
 from photorecon.fusion import FusionConfig
@@ -20,27 +21,6 @@ def scene():
     renderer = Renderer(normalize_mesh(make_scene("blob"))[0])
     views = make_views(SynthConfig(views=48, rig="sphere", width=320, height=240))
     return renderer, views
-
-
-def _coarse(renderer, views, seed: int = 0) -> dict:
-    """Per view a coarse map at a quarter of the resolution, as PatchMatch's first round gives it: the rendered
-    depth with 0.3% noise and 3% wrong pixels on the object, and a wall of unconfirmed depths (random, cost 0.3:
-    textureless background that matched by chance) where the object is not."""
-    from photorecon.depth.methods.patchmatch.solver import level_view
-
-    rng = np.random.default_rng(seed)
-    maps = {}
-    for v in views:
-        lv = level_view(v, 2)
-        r = renderer.render(lv)
-        d = (r.depth * (1 + 0.003 * rng.standard_normal(r.depth.shape))).astype(np.float32)
-        wrong = r.mask & (rng.random(d.shape) < 0.03)
-        d[wrong] *= rng.uniform(0.5, 2.0, wrong.sum()).astype(np.float32)
-        far = float(np.median(r.depth[r.mask]))
-        d[~r.mask] = rng.uniform(1.5 * far, 6.0 * far, (~r.mask).sum()).astype(np.float32)
-        cost = np.where(r.mask, 0.2, 0.3).astype(np.float32)
-        maps[v.name] = (lv, d, np.zeros(d.shape + (3,), np.float32), cost)
-    return maps
 
 
 def _sources(views, k: int = 6) -> dict:
@@ -68,7 +48,7 @@ def test_the_planned_voxel_is_the_one_the_fusion_chooses(scene):
     cfg = FusionConfig(memory_gb=faces * MESH_BYTES_PER_FACE / 4 / 0.5 / 2 ** 30)  # the mesh share holds 1/4
     voxel, _ = tsdf_voxel_size(frames, cfg)
     assert voxel > 1.6 * v0, (voxel, v0)
-    maps = _coarse(renderer, views)
+    maps = coarse_maps(renderer, views, background=(1.5, 6.0), relative=True, background_cost=0.3)
     working = {v.name: v for v in views}
     need = planned_footprint(confirmed_surface(maps, _sources(views), 2), working, cfg)
     assert abs(need * cfg.voxel_footprints / voxel - 1) <= 0.15, (need * cfg.voxel_footprints, voxel)
@@ -82,7 +62,7 @@ def test_views_get_half_resolution_only_where_the_mesh_keeps_no_finer_detail(sce
     """No memory budget: the voxel is 1.5 footprints of the full maps, so every view keeps full resolution. A
     budget that doubles the voxel: every view (all at one distance) gets half resolution, and says why."""
     renderer, views = scene
-    maps = _coarse(renderer, views)
+    maps = coarse_maps(renderer, views, background=(1.5, 6.0), relative=True, background_cost=0.3)
     working = {v.name: v for v in views}
     surface = confirmed_surface(maps, _sources(views), 2)
     choice = ViewChoice([v.name for v in views], len(views), "coarse depth coverage")

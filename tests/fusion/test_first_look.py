@@ -6,29 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
+from conftest import coarse_maps
 from photorecon.fusion.first_look import first_look_mesh
 from photorecon.metrics import mesh_metrics
 from photorecon.render import Renderer
 from photorecon.synthetic import SynthConfig, make_scene, make_views, normalize_mesh
-
-
-def _coarse_maps(renderer, views, wrong: float, seed: int = 0) -> dict:
-    """Per view a map as PatchMatch's coarsest round gives it (a quarter of the resolution): the true z-depth with
-    0.3% noise, a fraction ``wrong`` of the surface's pixels at a random depth (matched well all the same: cost
-    0.2) and cost 0.2 on the surface, 1.0 off it."""
-    from photorecon.depth.methods.patchmatch.solver import level_view
-
-    rng = np.random.default_rng(seed)
-    maps = {}
-    for v in views:
-        lv = level_view(v, 2)
-        r = renderer.render(lv)
-        d = (r.depth * (1 + 0.003 * rng.standard_normal(r.depth.shape))).astype(np.float32)
-        bad = r.mask & (rng.random(r.depth.shape) < wrong)
-        d[bad] = rng.uniform(0.5, 2.0, bad.sum()) * d[bad]
-        d[~r.mask] = rng.uniform(0.5, 3.0, (~r.mask).sum())  # the background: depths, badly matched
-        maps[v.name] = (lv, d, np.zeros(d.shape + (3,), np.float32), np.where(r.mask, 0.2, 1.0).astype(np.float32))
-    return maps
 
 
 def test_first_look_of_noisy_coarse_maps_lies_on_the_surface():
@@ -39,7 +21,7 @@ def test_first_look_of_noisy_coarse_maps_lies_on_the_surface():
     gt = normalize_mesh(make_scene("blob"))[0]
     renderer = Renderer(gt)
     views = make_views(SynthConfig(views=40, rig="sphere", width=320, height=240))
-    mesh = first_look_mesh(_coarse_maps(renderer, views, wrong=0.05))
+    mesh = first_look_mesh(coarse_maps(renderer, views, wrong=0.05, background=(0.5, 3.0)))
     m = mesh_metrics(mesh, gt, n_samples=20_000)
     assert m.fscore >= 0.8 and m.precision >= 0.95, m
     # bounded by the truth: nothing from the background's depths
@@ -54,7 +36,7 @@ def test_first_look_needs_two_maps_to_agree():
 
     renderer = Renderer(normalize_mesh(make_scene("blob"))[0])
     views = make_views(SynthConfig(views=12, rig="ring", width=160, height=120))
-    maps = _coarse_maps(renderer, views[:1], wrong=0.0)
+    maps = coarse_maps(renderer, views[:1], wrong=0.0, background=(0.5, 3.0))
     with pytest.raises((EmptyMeshError, NoDepthError)):
         first_look_mesh(maps)
 
