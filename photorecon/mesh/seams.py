@@ -35,7 +35,6 @@ from ..io.images import sample_bilinear
 from ..progress import bar
 
 BLEND = 2.0  # texels each side of a seam that local blending reaches (0 = none)
-ROBUST = True
 LAMBDA = 0.1  # the regulariser's weight (its rows' coefficient, as in MVS-Texturing)
 RIDGE = 1e-10  # weight of |g|^2: fixes the free constant of each group of charts at the smallest offsets
 # (small against LAMBDA^2: the offsets of a chart would fall off over sqrt(LAMBDA^2 / RIDGE) = 10^4 edges)
@@ -343,9 +342,8 @@ def level_seams(atlas: np.ndarray, faces: np.ndarray, out_faces: np.ndarray, n_o
     rect_of = np.zeros(n_out, np.int64)
     rect_of[out_faces[seen].reshape(-1)] = np.repeat(face_rect[seen], 3)
     n_pairs = len(a)
-    if ROBUST:
-        ok = seam_inliers(rect_of[a] * (int(face_rect.max()) + 1) + rect_of[b], diff)
-        a, b, diff = a[ok], b[ok], diff[ok]
+    ok = seam_inliers(rect_of[a] * (int(face_rect.max()) + 1) + rect_of[b], diff)
+    a, b, diff = a[ok], b[ok], diff[ok]
     fo = out_faces[seen]
     reg = np.sort(np.concatenate([fo[:, [0, 1]], fo[:, [1, 2]], fo[:, [2, 0]]]), 1)
     key = np.unique(reg[:, 0] * np.int64(n_out) + reg[:, 1])  # each edge once
