@@ -74,13 +74,11 @@ def apply_settings_file(parser: argparse.ArgumentParser, args: argparse.Namespac
     done = []
     for option, name, value in items:
         action = parser._option_string_actions.get(option)
-        if action is None or action.dest in (argparse.SUPPRESS, "help") or option in ("--config", "--help-all"):
+        unknown = action is None or action.dest in (argparse.SUPPRESS, "help") or option in ("--config", "--help-all")
+        if unknown or (isinstance(action, _RenamedToValue) and option.startswith("--no-")):
             raise BadArgumentError(f"--config {path}: {name}: no such setting for '{parser.prog}' "
                                    f"(see {parser.prog} --help-all)")
         if isinstance(action, _RenamedToValue):  # object = true: scene = "object", as the boolean did
-            if option.startswith("--no-"):
-                raise BadArgumentError(f"--config {path}: {name}: no such setting for '{parser.prog}' "
-                                       f"(see {parser.prog} --help-all)")
             if not isinstance(value, bool):
                 raise BadArgumentError(f"--config {path}: {name}: expected true or false, got {value!r}")
             field = action.dest.split(".", 1)[1]
