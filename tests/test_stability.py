@@ -65,14 +65,11 @@ def _mesh(parts):
     return trimesh.Trimesh(np.concatenate(Vs), np.concatenate(Fs), process=False)
 
 
-@pytest.mark.xfail(strict=True, reason="a known tipping point: debris is measured against the largest piece, which a "
-                   "one-voxel bridge between two big halves doubles (tools/bench_stability.py measures it)")
 def test_debris_and_main_surface_do_not_hinge_on_a_thin_bridge_between_two_big_pieces():
     """The object's surface fused as two big halves, and small pieces along it of 0.3% of a half's area.
-    Whether a one-voxel bridge joins the halves (a 1-ulp change of the fused grid can make or break one)
-    doubles the size the pieces are measured against and so turns every small piece into debris. Measuring
-    them against the whole surface instead holds here, but lowered the dark walnut's F@1mm from 0.866 to 0.812,
-    so the rule stays as it is until one is found that keeps both."""
+    Whether a one-voxel bridge joins the halves (a 1-ulp change of the fused grid can make or break one) must not
+    change what the small pieces are measured against: with the largest piece's whole area they all turned into
+    debris with the bridge and stayed without it."""
     import numpy as np
 
     from photorecon.mesh import floater_mask, to_open3d
@@ -94,3 +91,37 @@ def test_debris_and_main_surface_do_not_hinge_on_a_thin_bridge_between_two_big_p
         return float(np.mean(~drop[n_big:n_big + sum(len(f) for _, f in small)]))
 
     assert kept_small(False) == kept_small(True)
+
+
+def test_a_wide_join_is_one_piece_and_small_pieces_are_measured_against_all_of_it():
+    """Two halves joined along their whole edge are one surface, not two bridged halves: the same small pieces
+    (0.15% of it) are debris, as they are against the largest piece's area."""
+    import numpy as np
+
+    from photorecon.mesh import floater_mask, to_open3d
+    from photorecon.mesh.clean import largest_area
+    from photorecon.mesh.geometry import triangle_components
+
+    whole = _square(0.0, 0.0, 2.0, 1.0, 40)
+    small = [_square(0.05 + 0.19 * (i % 10), 1.01 + 0.06 * (i // 10), 0.055, 0.055, 2) for i in range(30)]
+    mesh = _mesh([whole, *small])
+    labels, areas = triangle_components(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    assert largest_area(np.asarray(mesh.vertices), np.asarray(mesh.faces), labels, areas) == pytest.approx(2.0)
+    drop = floater_mask(to_open3d(mesh), 0.05, 0.05, 0.002)
+    assert drop[len(whole[1]):].all() and not drop[:len(whole[1])].any()
+
+
+def test_largest_area_is_a_half_whether_or_not_a_thin_bridge_joins_the_halves():
+    import numpy as np
+
+    from photorecon.mesh.clean import largest_area
+    from photorecon.mesh.geometry import triangle_components
+
+    half_a, half_b = _square(0.0, 0.0, 1.0, 1.0, 20), _square(1.002, 0.0, 1.0, 1.0, 20)
+    mesh = _mesh([half_a, half_b])
+    n = 21
+    bridge = [[10 * n + 20, len(half_a[0]) + 10 * n, len(half_a[0]) + 11 * n],
+              [10 * n + 20, len(half_a[0]) + 11 * n, 11 * n + 20]]
+    for faces in (mesh.faces, np.vstack([mesh.faces, bridge])):
+        labels, areas = triangle_components(np.asarray(mesh.vertices), faces)
+        assert largest_area(np.asarray(mesh.vertices), faces, labels, areas) == pytest.approx(1.0, rel=1e-3)

@@ -149,7 +149,8 @@ def camera_centres(cameras) -> np.ndarray | None:
 def floater_mask(m, min_component: float, floater_distance: float, min_detail: float, cameras=None) -> np.ndarray:
     """Per triangle of the Open3D mesh ``m``: True where it belongs to debris or a floater.
 
-    Components are connected triangles; their size is their area relative to the largest. The *main surface*
+    Components are connected triangles; their size is their area relative to the largest (``largest_area``: over
+    its big parts when thin bridges join them). The *main surface*
     is every component of at least ``min_component`` of the largest. A smaller component is a floater when
     its gap to the main surface (the nearest pair of vertices) exceeds ``floater_distance`` x the scene
     size: the extent of the main surface (its area-weighted 1-99 percentile box diagonal) or, with
@@ -157,17 +158,17 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     are details and kept, unless below ``min_detail`` of the largest (debris)."""
     from scipy.spatial import cKDTree
 
-    labels, areas = triangle_components(np.asarray(m.vertices), np.asarray(m.triangles))
+    V = np.asarray(m.vertices)
+    T = np.asarray(m.triangles)
+    labels, areas = triangle_components(V, T)
     n = len(areas)
     if n < 2:
         return np.zeros(len(labels), bool)
-    rel = areas / areas.max()
+    rel = areas / largest_area(V, T, labels, areas)
     main = rel >= min_component
     drop = rel < min_detail
     small = np.flatnonzero(~main & ~drop)
     if len(small):
-        V = np.asarray(m.vertices)
-        T = np.asarray(m.triangles)
         main_tris = main[labels]
         main_T = T[main_tris]
         main_v = unique_sorted(main_T)
@@ -201,6 +202,38 @@ def floater_mask(m, min_component: float, floater_distance: float, min_detail: f
     if n_drop:
         log.debug("cleaning: %d of %d components dropped (debris or floaters)", n_drop, n)
     return drop[labels]
+
+
+# the largest component's area, which the others are measured against, is taken over its big parts once thin bridges
+# are cut: a bridge a voxel or two wide between two big pieces of the surface is made or broken by a 1-ulp change of
+# the fused grid, and would double the area every small piece is measured against (and so turn them into debris)
+BRIDGE_RINGS = 2  # the faces within this many vertex rings of the largest component's open boundary are left out
+BRIDGE_PART = 0.25  # what is left falls into parts; those of at least this share of the biggest part are big parts
+
+
+def largest_area(V: np.ndarray, T: np.ndarray, labels: np.ndarray, areas: np.ndarray) -> float:
+    """The area the components (``labels`` per triangle of ``T``, ``areas`` per component) are measured against: the
+    largest component's, times the share of its biggest part among its big parts (``BRIDGE_PART``) once the faces
+    within ``BRIDGE_RINGS`` rings of its open boundary are left out. One area for two big halves whether or not a
+    thin bridge joins them; the largest component's own area when no thin bridge splits it."""
+    big = int(np.argmax(areas))
+    F = T[labels == big]
+    n = len(V)
+    for _ in range(BRIDGE_RINGS):
+        if not len(F):
+            break
+        keys, counts = unique_sorted(face_edge_keys(F, n), return_counts=True)
+        once = keys[counts == 1]
+        if not len(once):
+            break
+        rim = np.zeros(n, bool)
+        rim[once // n] = True
+        rim[once % n] = True
+        F = F[~rim[F].any(1)]
+    if not len(F):
+        return float(areas[big])
+    _, parts = triangle_components(V, F)
+    return float(areas[big] * parts.max() / parts[parts >= BRIDGE_PART * parts.max()].sum())
 
 
 def _linked(centres: np.ndarray, labels: np.ndarray, kept: np.ndarray, candidates: np.ndarray, gap: float) -> np.ndarray:
