@@ -13,6 +13,7 @@ one layout; ``reconstruct`` adds the mesh, its previews and reports, and its wor
     ROOT/mesh.{ply,obj,glb}     the fused, cleaned mesh
     ROOT/mesh_closed.{ply,...}  an object capture's watertight companion of it
     ROOT/model.glb              the mesh simplified and textured from the photos (+ model.obj, .mtl, .png)
+    ROOT/model_view.png         one photo beside the textured model rendered from its camera
     ROOT/preview.png            the mesh from four viewpoints
     ROOT/report.json, report.html
     ROOT/colmap/                SfM working files (with its own images/, masks/, sparse/, .stages/)
@@ -31,7 +32,7 @@ from pathlib import Path
 
 WRITTEN_NAMES = ("images", "depth", "masks", "sparse", "colmap", "textured", "transforms.json", "gt_mesh.ply",
                  "scene.json", "mesh.ply", "mesh.obj", "mesh.glb", "mesh_closed.ply", "mesh_closed.obj",
-                 "model.glb", "model.obj", "model.mtl", "model.png",
+                 "model.glb", "model.obj", "model.mtl", "model.png", "model_view.png",
                  "mesh_closed.glb", "preview.png", "preview_mesh.ply", "first_look", "report.json",
                  "report.html", "mvs_report.json", "mono_report.json", ".stages", ".work", ".mvs_work")
 
@@ -141,6 +142,12 @@ class Layout:
         """``model.glb``: the textured model (simplified mesh, texture from the photos); ``model.obj``,
         ``model.mtl`` and ``model.png`` (its texture) with ``--formats`` including obj."""
         return self.root / f"model.{ext}"
+
+    @property
+    def model_view(self) -> Path:
+        """``model_view.png``: the photo that sees most of the textured model beside the model rendered from its
+        camera (report.html shows it)."""
+        return self.root / "model_view.png"
 
     def mesh_closed(self, fmt: str = "ply") -> Path:
         """``mesh_closed.ply`` (``.obj``, ``.glb``): an object capture's watertight companion of the mesh."""

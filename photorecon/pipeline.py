@@ -54,14 +54,14 @@ from .fusion.budget import planned_footprint, voxel_settings
 from .io.atomic import atomic_write_json
 from .mesh import CleanConfig
 from .mesh.refine import RefineConfig
-from .report import PAGE_MAX_FACES, decimate_for_viewer, write_html_report
+from .report import PAGE_MAX_FACES, decimate_for_viewer, model_view_output, write_html_report
 from .poses.scale import ScaleConfig
 from .poses.sfm import SfMConfig
 from .layout import Layout
 from .resources import check_memory
 from .results import Result
 from .stages import Stages, atomic_dir, fingerprint
-from .mesh.model import ModelConfig
+from .mesh.model import ModelConfig, model_output, model_paths
 from .mesh.texture import TextureConfig
 from .config_checks import check_config, expect_config
 
@@ -416,18 +416,18 @@ def _reconstruct(images: Path, out: Path, cfgs: StageConfigs, force: bool, is_vi
                    result=True)
 
         # 4. the textured model: the mesh simplified and textured from the photos: OUT/model.glb (+ .obj)
-        from .mesh.model import model_output, model_paths
-
         if run.texture == "on":
-            def model() -> dict:
+            def model() -> dict:  # model.glb, then model_view.png: a photo beside the model seen from its camera
                 mesh = fused["mesh"] if "mesh" in fused else load_mesh(layout.mesh(formats[0]))
-                return model_output(out, cfgs.model, cfgs.texture, formats, mesh=mesh, fusion=stages.info.get("fusion"),
+                info = model_output(out, cfgs.model, cfgs.texture, formats, mesh=mesh, fusion=stages.info.get("fusion"),
                                     scale=stages.info.get("poses", {}).get("scale"))  # frame: plane, units
+                return {**info, "view": model_view_output(out, info)}
 
             stages.run("model", {"model": asdict(cfgs.model), "texture": asdict(cfgs.texture), "obj": "obj" in formats,
-                                 "frame": "upright"}, model, outputs=model_paths(layout, formats), result=True)
+                                 "frame": "upright"}, model, outputs=model_paths(layout, formats) + [layout.model_view],
+                       result=True)
         else:  # an earlier run's model goes with the run's success (put back if it fails)
-            stages.set_aside(model_paths(layout, ("glb", "obj")) + [layout.stages / "model.json"], group="model")
+            stages.set_aside([*model_paths(layout, ("glb", "obj")), layout.model_view, layout.stages / "model.json"], group="model")
     except BaseException:
         stages.restore()  # the last complete result put back
         raise

@@ -4,7 +4,9 @@ The 3D view is a small hand-written WebGL2 viewer (``viewer.js``, package data; 
 (decimated to ``PAGE_MAX_FACES``) travels inside the page as zlib-compressed base64 (uint32 faces, uint16
 positions quantised over the bounding box, uint8 vertex colours) and is inflated by the browser's
 ``DecompressionStream``; the cameras are drawn as frusta (line segments). Orbit / pan / zoom with mouse or
-touch, a reset button. The page opens from ``file://`` with no server.
+touch, a reset button. The page opens from ``file://`` with no server. With a textured model (report.html when
+the run wrote model.glb: ``textured.model_payload``, in the mesh's and cameras' frame) the view opens on the model,
+its atlas a WebGL texture, and a toggle switches between it and the vertex-coloured mesh.
 
 The initial view is computed here (``initial_view``) so tests can render the same viewpoint and compare
 silhouettes: the camera looks at the mesh's bounding-box centre from direction ``front`` tilted by
@@ -132,9 +134,11 @@ def frustum_segments(cameras: list[View], scale: float) -> np.ndarray:
 
 
 def viewer_payload(mesh: trimesh.Trimesh, cameras: list[View] | None = None,
-                   max_faces: int = PAGE_MAX_FACES) -> dict:
+                   max_faces: int = PAGE_MAX_FACES, model: dict | None = None) -> dict:
     """The viewer's data: ``meta`` (JSON-able: counts, quantisation, initial view, frusta) and ``data``
-    (base64 of zlib(faces uint32 | positions uint16 | colours uint8))."""
+    (base64 of zlib(faces uint32 | positions uint16 | colours uint8)); with ``model`` (``textured.model_payload``:
+    the textured model, in the frame of ``mesh`` and ``cameras``) also ``model``, which the view shows first,
+    with a toggle to the mesh."""
     shown = decimate_for_viewer(mesh, max_faces)
     verts = np.asarray(shown.vertices, np.float64)
     faces = np.ascontiguousarray(shown.faces, dtype="<u4")
@@ -161,30 +165,55 @@ def viewer_payload(mesh: trimesh.Trimesh, cameras: list[View] | None = None,
             "offset": lo.tolist(), "step": step, "colored": bool(has_colors), "view": view,
             "cameras": len(cams), "frustum_scale": frustum_scale(view, cams) if cams else 0.0, "frusta": np.round(lines, 6).ravel().tolist(),
             "camera_centers": [np.round(c.center, 6).tolist() for c in cams]}
-    return {"meta": meta, "data": base64.b64encode(blob).decode("ascii")}
+    payload = {"meta": meta, "data": base64.b64encode(blob).decode("ascii")}
+    if model is not None:
+        payload["model"] = model
+    return payload
+
+
+def _script_text(obj) -> str:
+    """JSON for inside a ``<script>`` element: no '<' at all (a name holding '</script>' or '<!--' would end or
+    break the element)."""
+    return (json.dumps(obj, separators=(",", ":"))
+            .replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
 
 
 def viewer_html(payload: dict, full_window: bool = False) -> str:
     """A ``<div>`` with the canvas, its buttons, the embedded data and the viewer script. ``full_window``:
     the viewer fills the page (the standalone page); otherwise ``#viewer`` in the URL does that."""
-    # inside <script>: no '<' at all (a name holding '</script>' or '<!--' would end or break the element)
-    meta = (json.dumps(payload["meta"], separators=(",", ":"))
-            .replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
-    m = payload["meta"]
+    m = dict(payload["meta"])
+    model = payload.get("model")
+    textured = model is not None and "data" in model
+    if textured:
+        m["model"] = model["meta"]
     shown = (f"{m['faces']:,} of {m['faces_full']:,} faces" if m["faces_full"] > m["faces"] else f"{m['faces']:,} faces")
+    if textured:
+        shown = f"textured model {model['meta']['faces']:,} faces, mesh {shown}"
+    toggle = note = data = ""
+    if textured:  # the textured model first; the mesh (mesh.ply decimated, vertex colours) a click away
+        toggle = ('<span class="prv-toggle"><button id="prv-show-model" aria-pressed="true" title="model.glb with its '
+                  'texture from the photos">Textured model</button><button id="prv-show-mesh" aria-pressed="false" '
+                  'title="mesh.ply (decimated for the page) with its vertex colours">Mesh (vertex colours)</button>'
+                  '</span>')
+        data = (f'<script type="application/octet-stream" id="prv-model-data">{model["data"]}</script>'
+                + "".join(f'<script type="application/octet-stream" id="prv-model-tex-{i}">{t}</script>'
+                          for i, t in enumerate(model["textures"])))
+    elif model is not None:  # a model the page does not hold: say why
+        note = f'<p class="prv-note">No textured view: {html.escape(model["meta"].get("skipped", ""))}</p>'
     return (f'<div id="viewer" class="prv{" prv-page" if full_window else ""}">'
             '<canvas id="prv-canvas"></canvas>'
-            '<div class="prv-bar"><button id="prv-reset" title="back to the first view">Reset view</button>'
+            f'<div class="prv-bar">{toggle}<button id="prv-reset" title="back to the first view">Reset view</button>'
             '<button id="prv-cams" title="show or hide the camera frusta">Cameras</button>'
             '<button id="prv-fitcams" title="frame the mesh and all cameras">Fit cameras</button>'
-            '<button id="prv-colors" title="vertex colours or plain grey (shows the shape of dark surfaces)">Colours</button>'
+            '<button id="prv-colors" title="colours (texture or vertex colours) or plain grey (shows the shape of '
+            'dark surfaces)">Colours</button>'
             + ('' if full_window else '<a id="prv-full" href="#viewer">full window</a>') +
             f'<span class="prv-info" title="drag: rotate; right-drag or shift-drag: pan; wheel or pinch: zoom; '
             f'double-click: reset">{html.escape(shown)} &middot; {m["cameras"]} cameras &middot; drag, right-drag, '
             'wheel</span></div>'
-            '<div id="prv-msg"></div></div>'
-            f'<script type="application/json" id="prv-meta">{meta}</script>'
-            f'<script type="application/octet-stream" id="prv-data">{payload["data"]}</script>'
+            '<div id="prv-msg"></div></div>' + note +
+            f'<script type="application/json" id="prv-meta">{_script_text(m)}</script>'
+            f'<script type="application/octet-stream" id="prv-data">{payload["data"]}</script>' + data +
             f'<script>{_VIEWER_JS}</script>')
 
 
@@ -193,6 +222,8 @@ VIEWER_CSS = """.prv{position:relative;width:100%;max-width:1100px;height:560px;
 .prv-page,.prv:target{position:fixed;left:0;top:0;width:100vw;height:100vh;max-width:none;border:0;z-index:10}
 .prv-bar{position:absolute;left:8px;top:8px;font:13px sans-serif;color:#333}
 .prv-bar button,.prv-bar a{font:13px sans-serif;margin-right:4px;padding:3px 8px;background:#fff;border:1px solid #999;border-radius:3px;color:#222;text-decoration:none}
+.prv-bar button[aria-pressed=true]{background:#dbe6f5;border-color:#4a6a9a}
+.prv-toggle{margin-right:8px}
 .prv-info{margin-left:6px;background:rgba(255,255,255,.7);padding:2px 4px}
 #prv-msg{position:absolute;left:8px;bottom:8px;font:14px sans-serif;color:#a00}"""
 

@@ -62,6 +62,9 @@ def test_default_reconstruct_writes_a_simplified_textured_model(model_run, blob_
     assert t["file_size"] == (out / "model.glb").stat().st_size and t["cpu_seconds"] > 0
     assert set(t["files"]) == {"model.glb", "model.obj", "model.mtl", "model.png"}
     page = (out / "report.html").read_text()  # the summary lists the files
+    # the picture "photo | model" (tests/report/test_textured_view.py checks it), the textured 3D view
+    assert (out / "model_view.png").is_file() and t["view"]["file"] == "model_view.png"
+    assert t["view"]["photo"] in page and 'id="prv-model-data"' in page and 'id="prv-show-mesh"' in page
     row = page.split("<td>textured model</td><td>", 1)[1].split("</td>", 1)[0]
     assert row.startswith("model.glb (") and "model.obj (" in row and f"atlas {img.size[0]}x{img.size[1]}" in row
     obj = _load(out / "model.obj")  # the OBJ: the same faces, its texture the lossless PNG
@@ -118,7 +121,8 @@ def test_cached_rerun_keeps_the_model_and_texture_off_removes_it(model_run, blob
     assert _run(blob_small, out, *flags, "--padding", "3")[0] == ["model"]
     names, rep = _run(blob_small, out, *flags, "--texture", "off")
     assert names == [] and rep["texture"] == {}
-    assert not any((out / n).exists() for n in ("model.glb", "model.obj", "model.mtl", "model.png"))
+    assert not any((out / n).exists() for n in ("model.glb", "model.obj", "model.mtl", "model.png", "model_view.png"))
+    assert 'id="prv-model-data"' not in (out / "report.html").read_text()
     assert not (out / ".stages" / "model.json").exists()
     names, rep = _run(blob_small, out, "--texture", "--model-faces", "5000", "--formats", "ply")
     assert names[-1] == "model" and (out / "model.glb").is_file() and not (out / "model.obj").exists()
