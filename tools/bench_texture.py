@@ -23,8 +23,23 @@ Where the error lies: each fidelity row also splits the squared error by region 
 occlusion boundaries, where the geometry is off, the rest) and ``--error-maps DIR`` writes the renders and their
 error images.
 
+Real photos, held out (``--real``): a capture of ``../shared/data`` is reconstructed (``photorecon reconstruct
+--poses``, the defaults) from its given cameras with some photos left out (herz-jesu-p8: the 3rd and 6th of 8;
+entry-p10: the 4th and 7th of 10; each walnut ring: the 6th of 12), and three results are rendered unlit from each
+left-out camera: (a) ``mesh.ply`` with its vertex colours, (b) the full ``mesh.ply`` textured the way ``photorecon
+texture`` does it (``texture_mesh``, no simplification, a 4096 atlas; its GLB as that command writes it), (c) the
+default ``model.glb`` (mapped back into the reconstruction's frame with the inverse of report.json's
+``texture.frame.model_from_reconstruction``). PSNR against the real photo over the pixels all three cover, after
+one least-squares gain per RGB channel (fitted on those pixels: exposure differences do not count); ``covered``:
+each result's share of the photo's pixels. Seam score of (b) and (c): ``seams.seam_steps``'s ``excess`` (colour
+step across chart borders minus the step inside charts, RGB 0-255), charts being the atlas's UV islands. One
+picture per capture in ``--out``: left-out photo | model.glb render. Reconstructions are kept in ``--out`` and
+reused by a later run with the same settings.
+
     python tools/bench_texture.py [--views 30] [--faces 30000] [--json out.json] [--only fidelity|time]
                                   [--scenes blob,room,bunny] [--error-maps DIR] [--gains 0.2]
+    python tools/bench_texture.py --real [--only herz,entry,walnut1..4] [--out DIR] [--json FILE]
+                                  [--max-size N] [--data ../shared/data]
 """
 from __future__ import annotations
 
@@ -235,19 +250,236 @@ def timing(views: int, faces: int, tmp: Path, atlas: int) -> dict:
             "texels_per_pixel": tex.info["texels_per_pixel"]}
 
 
+# --- real photos, held out (--real) ------------------------------------------------------------------------------
+REAL = {  # name: (folder under --data, its cameras, 0-based indices of the photos left out)
+    "herz": ("herz-jesu-p8", "gt_dense_cameras", (2, 5)),
+    "entry": ("entry-p10", "gt_dense_cameras", (3, 6)),
+    "walnut1": ("walnuts/2016_10_24__17_43_02", "sparse/0", (5,)),
+    "walnut2": ("walnuts/2016_10_25__12_57_06", "sparse/0", (5,)),
+    "walnut3": ("walnuts/2016_10_24__17_44_40", "sparse/0", (5,)),
+    "walnut4": ("walnuts/2016_10_25__12_10_52", "sparse/0", (5,)),
+}
+
+
+def held_out_input(src: Path, cams: str, held: tuple[int, ...], work: Path):
+    """``work``/input/images (copies of the kept photos) and ``work``/input/cameras (their cameras, COLMAP text);
+    returns (kept views, left-out views, the photo folder)."""
+    import shutil
+
+    from photorecon.io.cameras import read
+    from photorecon.io.cameras.colmap_text import write_colmap_text
+    from photorecon.io.cameras.model import SparseModel
+
+    views = sorted(read(src / cams).views, key=lambda v: v.name)
+    out_views = [views[i] for i in held]
+    kept = [v for i, v in enumerate(views) if i not in held]
+    images = work / "input" / "images"
+    images.mkdir(parents=True, exist_ok=True)
+    for v in kept:  # copies: reconstruct refuses links that lead out of the image folder
+        f = v.image_file or v.name
+        if not (images / f).is_file():
+            shutil.copy2(src / "images" / f, images / f)
+    cams_dir = work / "input" / "cameras"
+    with tempfile.TemporaryDirectory(dir=work) as td:  # rewritten only when changed: a later run reuses the stages
+        write_colmap_text(SparseModel(kept), td)
+        if not cams_dir.is_dir() or any((Path(td) / f.name).read_bytes() != f.read_bytes() for f in cams_dir.iterdir()):
+            shutil.rmtree(cams_dir, ignore_errors=True)
+            shutil.copytree(td, cams_dir)
+    return kept, out_views, src / "images"
+
+
+def in_reconstruction_frame(given_kept, recon_views, held):
+    """The left-out cameras in the reconstruction's frame: the similarity that takes the kept cameras' given
+    centres onto the reconstruction's applied to them (the identity when the reconstruction kept the given
+    frame, as with --poses and no scale source)."""
+    from dataclasses import replace as dc_replace
+
+    from photorecon.transform import umeyama
+
+    by_name = {v.name: v for v in recon_views}
+    a = np.array([v.center for v in given_kept])
+    b = np.array([by_name[v.name].center for v in given_kept])
+    if np.abs(a - b).max() <= 1e-6 * max(np.ptp(a, axis=0).max(), 1e-12):
+        return held
+    s, R, t = umeyama(a, b)
+    out = []
+    for v in held:
+        Rc, tc = v.cam_from_world[:3, :3], v.cam_from_world[:3, 3]
+        T = np.eye(4)
+        T[:3, :3] = Rc @ R.T
+        T[:3, 3] = s * tc - Rc @ R.T @ t
+        out.append(dc_replace(v, cam_from_world=T))
+    return out
+
+
+def uv_islands(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Per face, the UV island it lies in (faces joined by shared vertices: one island per atlas chart)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(mesh.faces, np.int64)
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    n = len(mesh.vertices)
+    _, comp = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    return comp[F[:, 0]]
+
+
+def load_textured(path: Path, model_from_reconstruction=None) -> tuple[trimesh.Trimesh, dict]:
+    """A GLB -> (mesh in the reconstruction's frame, its seam steps over UV islands)."""
+    m = trimesh.load(path, process=False, force="mesh")
+    atlas = np.asarray(m.visual.material.baseColorTexture.convert("RGB"))
+    steps = seam_steps(m, atlas, uv_islands(m))
+    if model_from_reconstruction is not None:
+        m.apply_transform(np.linalg.inv(np.asarray(model_from_reconstruction, np.float64)))
+    return m, steps
+
+
+def gain_psnr(render: np.ndarray, photo: np.ndarray, mask: np.ndarray) -> tuple[float, np.ndarray]:
+    """PSNR of ``render`` against ``photo`` over ``mask`` after one least-squares gain per channel; the gains."""
+    r = render[mask].astype(np.float64)
+    p = photo[mask].astype(np.float64)
+    g = (r * p).sum(0) / np.maximum((r * r).sum(0), 1e-12)
+    err = (np.clip(r * g, 0, 255) - p) ** 2
+    return float(10 * np.log10(255.0 ** 2 / max(err.mean(), 1e-12))), g
+
+
+def side_by_side(path: Path, photo: np.ndarray, render, gain: np.ndarray, height: int = 300,
+                 limit: int = 290_000) -> None:
+    """``path``: photo | render (its gain applied, uncovered pixels black), ``height`` pixels high, a PNG under
+    ``limit`` bytes (colours reduced to a 256-colour palette when the full-colour PNG is larger). A dark photo
+    (the walnuts') is brightened for viewing, both halves by the same factor. Returns that factor."""
+    import io
+
+    import cv2
+    from PIL import Image
+
+    bright = max(1.0, 200.0 / max(float(np.percentile(photo, 99.5)), 1.0))
+    photo = np.clip(photo * bright + 0.5, 0, 255).astype(np.uint8)
+    img = np.where(render.mask[..., None], np.clip(render.rgb * gain * bright + 0.5, 0, 255), 0).astype(np.uint8)
+    w = round(photo.shape[1] * height / photo.shape[0])
+    pair = np.concatenate([cv2.resize(photo, (w, height), interpolation=cv2.INTER_AREA),
+                           np.zeros((height, 4, 3), np.uint8) + 255,
+                           cv2.resize(img, (w, height), interpolation=cv2.INTER_AREA)], 1)
+    pic = Image.fromarray(pair)
+    buf = io.BytesIO()
+    pic.save(buf, format="PNG", optimize=True)
+    if buf.tell() > limit:
+        buf = io.BytesIO()
+        pic.quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(buf, format="PNG", optimize=True)
+    path.write_bytes(buf.getvalue())
+    return bright
+
+
+def real_capture(name: str, data: Path, out: Path, max_size: int | None) -> list[dict]:
+    """The three results of one capture (``REAL[name]``), one row each."""
+    import subprocess
+    import sys
+
+    from photorecon.io.images import read_image
+
+    folder, cams, held = REAL[name]
+    work = out / (name if max_size is None else f"{name}_{max_size}")
+    kept, left_out, photos = held_out_input(data / folder, cams, held, work)
+    recon = work / "recon"
+    cmd = [sys.executable, "-m", "photorecon", "-q", "reconstruct", str(work / "input" / "images"), "-o", str(recon),
+           "--poses", str(work / "input" / "cameras")] + (["--max-size", str(max_size)] if max_size else [])
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True)  # the stage runner reuses what an earlier run with the same settings wrote
+    rec_s = time.perf_counter() - t0
+    rep = json.loads((recon / "report.json").read_text())
+    ds = Dataset.open(recon)
+    left_out = in_reconstruction_frame(kept, ds.views, left_out)
+    full = load_mesh(recon / "mesh.ply")
+    # (b): the full mesh textured as ``photorecon texture`` does (no simplification), its GLB as that writes it
+    full_glb, full_info = work / "full_textured.glb", work / "full_textured.json"
+    if not (full_glb.is_file() and full_info.is_file()):
+        t1 = time.perf_counter()
+        tex = texture_mesh(full, ds.views, lambda k: ds.image(ds.views[k]), TextureConfig(), ds.mask)
+        info = {"texture_seconds": time.perf_counter() - t1, "texels_per_pixel": tex.info["texels_per_pixel"],
+                "charts": tex.info["charts"]}
+        full_glb.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Scene(tex.mesh)))
+        full_info.write_text(json.dumps(info) + "\n")
+        del tex
+    tex_info = json.loads(full_info.read_text())
+    results = {"vertex colours (mesh.ply)": (full, None, recon / "mesh.ply"),
+               "full mesh textured": (*load_textured(full_glb), full_glb),
+               "model.glb": (*load_textured(recon / "model.glb", rep["texture"]["frame"]["model_from_reconstruction"]),
+                             recon / "model.glb")}
+    renderers = {k: Renderer(m, unlit=True) for k, (m, _, _) in results.items()}
+    acc = {k: [] for k in results}
+    for i, view in enumerate(left_out):
+        photo = read_image(photos / (view.image_file or view.name))
+        renders = {k: r.render(view) for k, r in renderers.items()}
+        common = np.logical_and.reduce([r.mask for r in renders.values()])
+        for k, r in renders.items():
+            p, g = gain_psnr(r.rgb, photo, common)
+            p_own, _ = gain_psnr(r.rgb, photo, r.mask)
+            acc[k].append({"view": view.name, "psnr": p, "psnr_own_pixels": p_own, "gain": g.tolist(),
+                           "covered": float(r.mask.mean()), "common": float(common.mean())})
+            if k == "model.glb" and i == 0:
+                bright = side_by_side(out / f"texture_real_{name}.png", photo, r, g)
+                if bright > 1.0:
+                    print(f"{name}: texture_real_{name}.png brightened x{bright:.1f} for viewing", flush=True)
+    rows = []
+    for k, (m, steps, path) in results.items():
+        per = acc[k]
+        rows.append({"capture": name, "result": k, "faces": int(len(m.faces)), "held_out": [p["view"] for p in per],
+                     "psnr": float(np.mean([p["psnr"] for p in per])),
+                     "psnr_own_pixels": float(np.mean([p["psnr_own_pixels"] for p in per])),
+                     "covered": float(np.mean([p["covered"] for p in per])),
+                     "common": float(np.mean([p["common"] for p in per])), "per_view": per,
+                     "seam": steps, "file": path.name, "file_mb": path.stat().st_size / 2**20,
+                     "max_size": max_size, "reconstruct_seconds": rec_s,
+                     **({"full": tex_info} if k == "full mesh textured" else {}),
+                     **({"model": {key: rep["texture"].get(key) for key in ("faces_in", "texels_per_pixel",
+                                                                             "atlases", "charts")}}
+                        if k == "model.glb" else {})})
+    return rows
+
+
+def real(args) -> None:
+    names = args.only.split(",") if args.only else list(REAL)
+    unknown = [n for n in names if n not in REAL]
+    if unknown:
+        raise SystemExit(f"--only: unknown capture {unknown[0]!r}; expected some of {', '.join(REAL)}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    print("| capture | result | faces | PSNR dB | covered | seam score | file MB |")
+    print("|---|---|---|---|---|---|---|")
+    for name in names:
+        for r in real_capture(name, Path(args.data), out, args.max_size):
+            rows.append(r)
+            seam = f"{r['seam']['excess']:.2f}" if r["seam"] else "-"
+            print(f"| {name} | {r['result']} | {r['faces']:,} | {r['psnr']:.2f} | {r['covered']:.1%} | {seam} | "
+                  f"{r['file_mb']:.1f} ({r['file']}) |", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"real": rows}, indent=2) + "\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, default=30)
     ap.add_argument("--faces", type=int, default=30000, help="face count of both meshes in the fidelity table")
     ap.add_argument("--time-faces", type=int, default=300000)
     ap.add_argument("--atlas", type=int, default=4096)
-    ap.add_argument("--only", choices=("fidelity", "time"))
+    ap.add_argument("--only", help="fidelity or time; with --real: captures, comma-separated (herz, entry, "
+                    "walnut1..walnut4; default all)")
+    ap.add_argument("--real", action="store_true", help="the held-out test on real photos (../shared/data)")
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+    ap.add_argument("--out", default="bench_texture_real", help="--real: reconstructions and pictures go here")
+    ap.add_argument("--max-size", type=int, help="--real: reconstruct at this working size (reconstruct's "
+                    "--max-size; default: its default)")
     ap.add_argument("--scenes", default="blob,room,bunny")
     ap.add_argument("--json", help="write the figures to this JSON file")
     ap.add_argument("--error-maps", help="write truth | textured | error images of the held-out views to this folder")
     ap.add_argument("--gains", type=float, default=0.2, help="seam table: photos scaled by a random gain in 1 +- this")
     args = ap.parse_args()
     progress.set_enabled(False)
+    if args.real:
+        return real(args)
+    if args.only not in (None, "fidelity", "time"):
+        ap.error("--only: fidelity or time (capture names go with --real)")
     res = {"fidelity": [], "seams": [], "time": None}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
