@@ -20,6 +20,15 @@ reconstruction is (markers, GPS, metric cameras given), else in its units. ``OUT
 ``transforms.json`` stay in the reconstruction's frame; report.json's ``texture.frame`` gives the rule and the 4x4
 ``model_from_reconstruction`` that brings them (or cameras: ``upright.apply_views``) into the model's.
 
+**Open or closed** (``--model-surface``, ``model_surface``). An object capture's model is by default its closed
+surface, the watertight companion ``mesh_closed.ply`` (``close.closed_companion``) simplified to the face budget:
+what 3D printing, AR and games expect. The faces its closing added (the underside the object stood on, holes no
+photo saw into: ``invented_faces``) are no photo's: they take the colours of the seen faces around them (diffused
+over the mesh, as ``texture_mesh`` colours unseen faces) and form a part of their own, a second glTF primitive
+(a second ``usemtl`` in model.obj) with the material ``"invented"``, which a viewer can hide or restyle. An open
+scene's model is the open surface of ``OUT/mesh.ply``; report.json's ``texture.surface`` says which, and
+``invented_area_share`` how much of the closed model's area was invented.
+
 The default face budget was measured on synthetic scenes against the full mesh in pixel footprints
 (docs/benchmarks.md, "Textured model: face budget").
 """
@@ -32,7 +41,7 @@ import struct
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 import trimesh
@@ -44,6 +53,7 @@ from ..io.atomic import atomic_path
 from ..layout import Layout
 from ..resources import available_bytes
 from .atlas import _merge_boxes, shelf_pack
+from .surface import carry_marks, model_surface
 from .texture import TextureConfig, texture_mesh
 from .upright import Upright, upright_frame
 
@@ -52,6 +62,7 @@ log = logging.getLogger("photorecon")
 DEFAULT_MODEL_FACES = 150_000  # docs/benchmarks.md, "Textured model": <= 15% of the demo's CPU, shape kept
 JPEG_QUALITY = 90
 MATERIAL_NAME = "photorecon_model"
+INVENTED_MATERIAL = "invented"  # the closed model's faces no photo saw, a part of their own
 
 
 @dataclass
@@ -62,6 +73,7 @@ class ModelConfig:
 
     model_faces: int = field(default=DEFAULT_MODEL_FACES, metadata={"help": "faces of the textured model OUT/model.glb: the mesh is simplified to about this many before texturing (0 = every face of OUT/mesh.ply)", "range": (4, 2_000_000_000), "also": (0,)})
     max_atlas: int = field(default=8192, metadata={"help": "largest side of the model's texture atlas, texels (charts that do not fit at one texel per photo pixel are packed at a lower density)", "range": (256, 16384)})
+    model_surface: Literal["auto", "open", "closed"] = field(default="auto", metadata={"help": "auto: closed for an object capture (it has mesh_closed.ply), else open; open: the surface of OUT/mesh.ply; closed: the watertight surface, its faces no photo saw (the underside, holes) a part of their own with the material \"invented\", coloured from the faces around them"})
 
     def __post_init__(self):
         check_config(self)  # types, choices and ranges as declared (photorecon.config_checks)
@@ -72,6 +84,7 @@ class Model:
     mesh: trimesh.Trimesh  # TextureVisuals: uv per vertex, material image = ``atlas``
     atlas: np.ndarray  # (H, W, 3) uint8
     info: dict
+    invented: np.ndarray | None = None  # (F,) bool: the closed model's faces no photo saw (None: the open model)
 
 
 def model_paths(layout: Layout, formats: tuple[str, ...] | list[str]) -> list[Path]:
@@ -96,12 +109,14 @@ def atlas_within_memory(largest: int) -> int:
 
 
 # --- the atlas, repacked ---------------------------------------------------------------------------------------
-def compact_atlas(mesh: trimesh.Trimesh, atlas: np.ndarray, pad: int) -> tuple[trimesh.Trimesh, np.ndarray]:
+def compact_atlas(mesh: trimesh.Trimesh, atlas: np.ndarray, pad: int,
+                  block: np.ndarray | None = None) -> tuple[trimesh.Trimesh, np.ndarray]:
     """``mesh`` (TextureVisuals into ``atlas``, (N, N, 3)) with its charts repacked into the smallest atlas
     that holds them: the texel boxes of its UV islands (faces joined by shared vertices), widened by ``pad`` + 1
     texels and merged where they overlap by more than two, shelf-packed into the narrowest width (a multiple of 4) whose rows fit
     in a square, then cropped to the height used. Each box's texels are copied as they are (no resampling);
-    UVs follow their box. Returns the new mesh and atlas."""
+    UVs follow their box. ``block``: (F,) bool, faces whose texels lie in one block (``texture_mesh``'s cells of
+    the faces no photo sees), moved as one box (one per face would be thousands). Returns the new mesh and atlas."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -114,6 +129,9 @@ def compact_atlas(mesh: trimesh.Trimesh, atlas: np.ndarray, pad: int) -> tuple[t
     edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
     _, comp = connected_components(coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv)),
                                    directed=False)
+    if block is not None and np.any(block):
+        comp[F[np.asarray(block, bool)].reshape(-1)] = comp.max() + 1
+        comp = np.unique(comp, return_inverse=True)[1].reshape(-1)
     n = comp.max() + 1
     box = np.empty((n, 4))
     box[:, :2] = np.inf
@@ -155,21 +173,39 @@ def compact_atlas(mesh: trimesh.Trimesh, atlas: np.ndarray, pad: int) -> tuple[t
     return out, new
 
 
-def _material(atlas: np.ndarray):
+def _material(atlas: np.ndarray, name: str = MATERIAL_NAME):
     from PIL import Image
 
-    return trimesh.visual.material.PBRMaterial(name=MATERIAL_NAME, baseColorTexture=Image.fromarray(atlas),
+    return trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=Image.fromarray(atlas),
                                                metallicFactor=0.0, roughnessFactor=1.0)
+
+
+def model_parts(mesh: trimesh.Trimesh, invented: np.ndarray | None) -> list[tuple[str, trimesh.Trimesh]]:
+    """(material name, part) for the seen faces of ``mesh`` (TextureVisuals) and, when ``invented`` marks any, the
+    invented ones: each part with the vertices and UVs its faces use."""
+    F = np.asarray(mesh.faces, np.int64)
+    sel = np.zeros(len(F), bool) if invented is None else np.asarray(invented, bool)
+    parts = []
+    for name, faces in ((MATERIAL_NAME, F[~sel]), (INVENTED_MATERIAL, F[sel])):
+        if len(faces):
+            used, inv = np.unique(faces, return_inverse=True)
+            uv = np.asarray(mesh.visual.uv)[used]
+            parts.append((name, trimesh.Trimesh(np.asarray(mesh.vertices)[used], inv.reshape(-1, 3), process=False,
+                                                visual=trimesh.visual.TextureVisuals(uv=uv))))
+    return parts
 
 
 # --- building it ---------------------------------------------------------------------------------------------
 def build_model(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int], np.ndarray],
                 cfg: ModelConfig | None = None, texture: TextureConfig | None = None,
-                masks: Callable[[View], np.ndarray | None] | None = None) -> Model:
+                masks: Callable[[View], np.ndarray | None] | None = None, invented: np.ndarray | None = None) -> Model:
     """``mesh`` simplified to ``cfg.model_faces`` and textured from ``views`` (``images(k)``: the k-th view's
     photo) with the settings ``texture`` (its ``atlas_size`` and ``texture_faces`` are the model's:
-    ``cfg.max_atlas``, ``cfg.model_faces``), the atlas compacted (``compact_atlas``)."""
+    ``cfg.max_atlas``, ``cfg.model_faces``), the atlas compacted (``compact_atlas``). ``invented``: (F,) bool,
+    a closed surface's faces no photo saw (``model_surface``): carried through the simplification
+    (``carry_marks``), coloured from the faces around them, ``Model.invented`` of the model's faces."""
     from .clean import simplify
+    from .close import close_mesh
 
     cfg = expect_config(cfg, ModelConfig, "cfg")
     texture = expect_config(texture, TextureConfig, "texture")
@@ -177,19 +213,31 @@ def build_model(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int]
     faces_in = len(mesh.faces)
     t0 = time.process_time()
     if cfg.model_faces and faces_in > cfg.model_faces:
-        mesh = simplify(mesh, cfg.model_faces)
-        log.info("model: mesh simplified from %d to %d faces", faces_in, len(mesh.faces))
+        simple = simplify(mesh, cfg.model_faces)
+        log.info("model: mesh simplified from %d to %d faces", faces_in, len(simple.faces))
+        if invented is not None:
+            invented = carry_marks(mesh, invented, simple)
+            if not simple.is_watertight and mesh.is_watertight:  # a collapse opened it: closed again, invented
+                simple.face_attributes["filled"] = invented.astype(np.uint8)
+                simple = close_mesh(simple)
+                invented = simple.face_attributes["filled"] > 0
+        mesh = simple
     cpu_simplify = time.process_time() - t0
     side = atlas_within_memory(cfg.max_atlas)
-    res = texture_mesh(mesh, views, images, replace(texture, atlas_size=side, texture_faces=0), masks)
-    out, atlas = compact_atlas(res.mesh, res.atlas, texture.padding)
+    res = texture_mesh(mesh, views, images, replace(texture, atlas_size=side, texture_faces=0), masks, invented)
+    out, atlas = compact_atlas(res.mesh, res.atlas, texture.padding, block=res.labels < 0)
     info = {key: res.info[key] for key in ("faces", "vertices", "views_used", "views_blind", "unseen_faces",
                                            "inconsistent_views_dropped", "charts", "texels_per_pixel")
             if key in res.info}
     info.update(faces_in=int(faces_in), faces=int(len(out.faces)), vertices=int(len(out.vertices)),
                 atlases=[[int(atlas.shape[1]), int(atlas.shape[0])]], atlas_limit=side,
                 simplify_cpu_seconds=round(cpu_simplify, 2))
-    return Model(out, atlas, info)
+    if invented is not None:  # the unseen faces of the seen part apart from the invented ones
+        area = np.asarray(mesh.area_faces, np.float64)
+        info.update(unseen_faces=int(((res.labels < 0) & ~invented).sum()), invented_faces=int(invented.sum()),
+                    invented_area_share=round(float(area[invented].sum() / max(area.sum(), 1e-300)), 4),
+                    watertight=bool(mesh.is_watertight))
+    return Model(out, atlas, info, invented)
 
 
 # --- the model's frame ------------------------------------------------------------------------------------------
@@ -240,21 +288,45 @@ def _encode(atlas: np.ndarray, fmt: str) -> bytes:
     return buf.getvalue()
 
 
-def model_glb(mesh: trimesh.Trimesh, atlas: np.ndarray) -> bytes:
+def model_glb(mesh: trimesh.Trimesh, atlas: np.ndarray, invented: np.ndarray | None = None) -> bytes:
     """``mesh`` as GLB with ``atlas`` embedded as JPEG (trimesh writes the geometry and material around a
-    1x1 stand-in image, whose bytes are then replaced: trimesh itself embeds PNG, or JPEG at quality 75)."""
-    stand_in = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
-                               visual=trimesh.visual.TextureVisuals(uv=mesh.visual.uv,
-                                                                    material=_material(np.zeros((1, 1, 3), np.uint8))))
-    glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(stand_in))
-    return replace_glb_images(glb, {0: (_encode(atlas, "JPEG"), "image/jpeg")})
+    1x1 stand-in image, whose bytes are then replaced: trimesh itself embeds PNG, or JPEG at quality 75). With
+    ``invented`` faces: one glTF mesh of two primitives (``model_parts``), the second with the material
+    ``"invented"``; both materials show the one atlas."""
+    scene = trimesh.Scene()
+    for name, part in model_parts(mesh, invented):
+        part.visual.material = _material(np.zeros((1, 1, 3), np.uint8), name)
+        scene.add_geometry(part, geom_name=name)
+    glb = trimesh.exchange.gltf.export_glb(scene)
+    return replace_glb_images(glb, {0: (_encode(atlas, "JPEG"), "image/jpeg")}, edit=_one_mesh)
 
 
-def replace_glb_images(glb: bytes, images: dict[int, tuple[bytes, str]]) -> bytes:
+def _one_mesh(doc: dict) -> None:
+    """trimesh's glTF of several geometries (a node and a mesh each) made one mesh of their primitives, every
+    material on the first texture (the one atlas)."""
+    meshes, nodes = doc.get("meshes", []), doc.get("nodes", [])
+    if len(meshes) > 1 and all("children" not in nd for nd in nodes) and len(doc.get("scenes", [])) == 1:
+        meshes[0]["primitives"] = [prim for m in meshes for prim in m["primitives"]]
+        del meshes[1:]
+        doc["nodes"] = [nd for nd in nodes if nd.get("mesh", 0) == 0][:1]
+        doc["scenes"][0]["nodes"] = [0]
+    for mat in doc.get("materials", []):
+        if "baseColorTexture" in mat.get("pbrMetallicRoughness", {}):
+            mat["pbrMetallicRoughness"]["baseColorTexture"]["index"] = 0
+        if mat.get("name") == INVENTED_MATERIAL:
+            mat["extras"] = {"photorecon": "faces no photo saw (the closing of the surface): coloured from the "
+                                           "seen faces around them"}
+    doc["textures"], doc["images"] = doc.get("textures", [])[:1], doc.get("images", [])[:1]
+
+
+def replace_glb_images(glb: bytes, images: dict[int, tuple[bytes, str]],
+                       edit: Callable[[dict], None] | None = None) -> bytes:
     """``glb`` with image ``i``'s bytes and MIME type replaced by ``images[i]``; every buffer view moved to its
-    new offset (4-byte aligned) in the one binary chunk."""
+    new offset (4-byte aligned) in the one binary chunk. ``edit``: changes the JSON document first."""
     n = struct.unpack_from("<I", glb, 12)[0]
     doc = json.loads(glb[20:20 + n])
+    if edit is not None:
+        edit(doc)
     bin_len = struct.unpack_from("<I", glb, 20 + n)[0]
     data = glb[28 + n:28 + n + bin_len]
     by_view = {}
@@ -278,21 +350,32 @@ def replace_glb_images(glb: bytes, images: dict[int, tuple[bytes, str]]) -> byte
             + struct.pack("<II", len(new), 0x004E4942) + bytes(new))
 
 
+def _obj_text(mesh: trimesh.Trimesh, invented: np.ndarray | None, mtl_name: str) -> str:
+    """model.obj: the vertices and UVs (one UV per vertex), then the faces of each part (``model_parts``) after
+    its ``usemtl``."""
+    a2s = trimesh.util.array_to_string
+    F = np.asarray(mesh.faces, np.int64)
+    sel = np.zeros(len(F), bool) if invented is None else np.asarray(invented, bool)
+    lines = [f"mtllib {mtl_name}", "v " + a2s(np.asarray(mesh.vertices), col_delim=" ", row_delim="\nv ", digits=8),
+             "vt " + a2s(np.asarray(mesh.visual.uv), col_delim=" ", row_delim="\nvt ", digits=8)]
+    for name, faces in ((MATERIAL_NAME, F[~sel]), (INVENTED_MATERIAL, F[sel])):
+        if len(faces):
+            lines += [f"usemtl {name}", "f " + a2s(faces + 1, col_delim=" ", row_delim="\nf ", value_format="{}/{}")]
+    return "\n".join(lines) + "\n"
+
+
 def export_model(model: Model, layout: Layout, formats: tuple[str, ...] | list[str]) -> dict:
     """Write ``model_paths(layout, formats)``, each file atomically. Returns file name -> size in bytes."""
     written = {}
     path = layout.model("glb")
     with atomic_path(path) as tmp:
-        tmp.write_bytes(model_glb(model.mesh, model.atlas))
+        tmp.write_bytes(model_glb(model.mesh, model.atlas, model.invented))
     written[path.name] = path.stat().st_size
     if "obj" in formats:
-        simple = trimesh.visual.material.SimpleMaterial(name=MATERIAL_NAME, diffuse=(255, 255, 255, 255))
-        obj_mesh = trimesh.Trimesh(model.mesh.vertices, model.mesh.faces, process=False,
-                                   visual=trimesh.visual.TextureVisuals(uv=model.mesh.visual.uv, material=simple))
-        text = trimesh.exchange.obj.export_obj(obj_mesh, include_normals=False, include_texture=True,
-                                               mtl_name=layout.model("mtl").name)
-        mtl = (f"newmtl {MATERIAL_NAME}\nKa 1.000000 1.000000 1.000000\nKd 1.000000 1.000000 1.000000\n"
-               f"Ks 0.000000 0.000000 0.000000\nNs 1.000000\nillum 1\nmap_Kd {layout.model('png').name}\n")
+        text = _obj_text(model.mesh, model.invented, layout.model("mtl").name)
+        mtl = "\n".join(f"newmtl {name}\nKa 1.000000 1.000000 1.000000\nKd 1.000000 1.000000 1.000000\n"
+                        f"Ks 0.000000 0.000000 0.000000\nNs 1.000000\nillum 1\nmap_Kd {layout.model('png').name}\n"
+                        for name in [MATERIAL_NAME] + [INVENTED_MATERIAL] * bool(np.any(model.invented)))
         for p, payload in ((layout.model("png"), _encode(model.atlas, "PNG")), (layout.model("mtl"), mtl.encode()),
                            (layout.model("obj"), text.encode())):
             with atomic_path(p) as tmp:
@@ -314,6 +397,7 @@ def model_output(out: str | Path, cfg: ModelConfig | None = None, texture: Textu
     from .export import load_mesh
 
     t0 = time.process_time()
+    cfg = expect_config(cfg, ModelConfig, "cfg")
     out = Path(out)
     layout = Layout(out)
     ds = Dataset.open(out)
@@ -325,12 +409,15 @@ def model_output(out: str | Path, cfg: ModelConfig | None = None, texture: Textu
     if not views:
         raise TextureError(f"{out}: no cameras: the textured model needs the views the mesh was made from")
     t1 = time.process_time()
-    frame = model_frame(mesh, views, fusion, scale)
+    frame = model_frame(mesh, views, fusion, scale)  # the open mesh's: the same frame for either surface
     cpu_frame = time.process_time() - t1
-    model = build_model(mesh, views, lambda k: ds.image(views[k]), cfg, texture, ds.mask)
+    surface, invented, why = model_surface(mesh, cfg.model_surface, layout, fusion)
+    log.info("model: the %s surface (%s)", "open" if invented is None else "closed", why)
+    model = build_model(surface, views, lambda k: ds.image(views[k]), cfg, texture, ds.mask, invented)
     model.mesh.apply_transform(frame.model_from_world)  # textured in the photos' frame, written upright
     files = export_model(model, layout, formats)
-    info = {**model.info, "files": files, "file_size": files[layout.model("glb").name],
+    info = {**model.info, "surface": "open" if invented is None else "closed", "surface_reason": why,
+            "files": files, "file_size": files[layout.model("glb").name],
             "frame": frame_info(frame), "frame_cpu_seconds": round(cpu_frame, 2),
             "cpu_seconds": round(time.process_time() - t0, 2)}
     w, h = info["atlases"][0]

@@ -66,7 +66,6 @@ log = logging.getLogger("photorecon")
 
 MAX_ATLAS = 65536
 
-
 TEXTURED_FILES = ("mesh.obj", "mesh.mtl", "texture.png", "mesh.glb")
 
 
@@ -293,9 +292,12 @@ def photo_outliers(face: np.ndarray, view: np.ndarray, colors: np.ndarray,
 
 
 def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int], np.ndarray],
-                 cfg: TextureConfig | None = None, masks: Callable[[View], np.ndarray | None] | None = None) -> Textured:
+                 cfg: TextureConfig | None = None, masks: Callable[[View], np.ndarray | None] | None = None,
+                 blind: np.ndarray | None = None) -> Textured:
     """Texture ``mesh`` from ``views`` (``images(k)``: the k-th view's photo, (H, W, 3) uint8, at its camera's
-    size). Raises ``EmptyMeshError`` for a mesh without faces, ``TextureError`` when no view sees the mesh."""
+    size). ``blind``: (F,) bool, faces no photo textures nor hides anything behind (a closed model's invented
+    fill; ``cfg.texture_faces`` 0): coloured as unseen faces are. Raises ``EmptyMeshError`` for a mesh without
+    faces, ``TextureError`` when no view sees the mesh."""
     cfg = expect_config(cfg, TextureConfig, "cfg")
     check_config(cfg)  # also after changes made to it since it was built
     if mesh is None or not len(mesh.faces):
@@ -311,7 +313,13 @@ def texture_mesh(mesh: trimesh.Trimesh, views: list[View], images: Callable[[int
         log.info("texture: mesh simplified from %d to %d faces", faces_in, len(mesh.faces))
     mesh = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
     adjacency = np.asarray(mesh.face_adjacency, np.int64).reshape(-1, 2)
-    q = face_view_quality(mesh, views, masks, cfg.min_cos)
+    blind, scene = np.zeros(len(mesh.faces), bool) if blind is None else np.asarray(blind, bool), None
+    if blind.any():  # no occluders either: a cup's lid would hide its inside, which the photos show
+        from .convert import raycasting_scene
+
+        scene = raycasting_scene(trimesh.Trimesh(mesh.vertices, mesh.faces[~blind], process=False))
+    q = face_view_quality(mesh, views, masks, cfg.min_cos, scene)
+    q[blind] = 0  # a mask of another length than the faces' raises
     per_view = (q > 0).sum(0)
     if not per_view.any():
         raise TextureError(f"none of the {len(views)} views sees the mesh (faces {len(mesh.faces)}): check that the "

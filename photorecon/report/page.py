@@ -58,6 +58,14 @@ def summary_facts(report: dict) -> dict[str, str]:
                                              for n, s in model["files"].items())
                                    + f": {format_count(model.get('faces'))} faces, atlas "
                                    + ", ".join(f"{w}x{h}" for w, h in model.get("atlases") or []))
+        if model.get("surface") == "closed":  # the closed surface: how much of it no photo saw
+            share = model.get("invented_area_share")
+            facts["textured model"] += "; closed surface" + ("" if model.get("watertight", True) else " (not watertight)")
+            if share is not None:
+                facts["textured model"] += (f", {format_percent(share)} of its area invented (no photo saw it: the "
+                                            'part with the material "invented")')
+        elif model.get("surface") == "open":
+            facts["textured model"] += "; open surface"
         frame = model.get("frame")
         if isinstance(frame, dict) and frame.get("rule"):  # the model's upright frame: the rule, the units
             facts["textured model"] += f"; +Y up by the {frame['rule']}, in {frame.get('units', 'scene units')}"

@@ -55,18 +55,39 @@ def load_model(out: str | Path, texture: dict | None) -> list[trimesh.Trimesh] |
         return None
     back = model_to_reconstruction(texture)
     scene = trimesh.load(path, process=False)
-    parts = scene.dump() if isinstance(scene, trimesh.Scene) else [scene]
+    if not isinstance(scene, trimesh.Scene):
+        scene = trimesh.Scene(scene)
     meshes = []
-    for m in parts:
-        if not isinstance(m, trimesh.Trimesh) or not len(m.faces):
+    for node in scene.graph.nodes_geometry:  # each part with its node's transform; materials shared, not copied
+        to_scene, name = scene.graph[node]
+        g = scene.geometry[name]
+        if not isinstance(g, trimesh.Trimesh) or not len(g.faces):
             continue
-        if not isinstance(m.visual, trimesh.visual.TextureVisuals) or m.visual.uv is None or _image(m) is None:
+        if not isinstance(g.visual, trimesh.visual.TextureVisuals) or g.visual.uv is None or _image(g) is None:
             continue
-        m.apply_transform(back)
+        m = trimesh.Trimesh(g.vertices, g.faces, process=False,
+                            visual=trimesh.visual.TextureVisuals(uv=g.visual.uv, material=g.visual.material))
+        m.apply_transform(back @ to_scene)
         meshes.append(m)
     if not meshes:
         raise ValueError(f"{path.name} holds no textured mesh")
-    return meshes
+    return _by_atlas(meshes)
+
+
+def _by_atlas(meshes: list[trimesh.Trimesh]) -> list[trimesh.Trimesh]:
+    """The parts that show one atlas joined into one mesh (a closed model's seen and invented parts share theirs:
+    the page and model_view.png take it once)."""
+    groups: dict[int, list[trimesh.Trimesh]] = {}
+    for m in meshes:
+        groups.setdefault(id(_image(m)), []).append(m)
+    out = []
+    for parts in groups.values():
+        start = np.cumsum([0] + [len(m.vertices) for m in parts])
+        out.append(parts[0] if len(parts) == 1 else trimesh.Trimesh(
+            np.concatenate([m.vertices for m in parts]), np.concatenate([m.faces + s for m, s in zip(parts, start)]),
+            process=False, visual=trimesh.visual.TextureVisuals(uv=np.concatenate([m.visual.uv for m in parts]),
+                                                                material=parts[0].visual.material)))
+    return out
 
 
 def _image(mesh: trimesh.Trimesh):
