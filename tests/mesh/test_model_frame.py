@@ -84,8 +84,9 @@ def test_an_object_capture_stands_on_its_table_with_its_base_centre_at_the_origi
     """model.glb of the box (its table removed by the cleaning) read back with trimesh: the table's normal
     within 2 degrees of +Y (through the reported transform, and fitted to the model's lowest vertices), the
     base centre within a voxel of the origin, nothing below the table; report.json names the rule, and its
-    model_from_reconstruction maps mesh.ply onto the model (simplified: 99% of the model's points within half a
-    voxel of the moved mesh.ply). mesh.ply and the cameras stay in the reconstruction's frame."""
+    model_from_reconstruction maps the model's source, the closed companion mesh_closed.ply, onto the model
+    (simplified: 99% of the model's points within half a voxel of the moved mesh_closed.ply). mesh.ply and the
+    cameras stay in the reconstruction's frame."""
     data, W, base, normal, unit = turned_capture
     out = tmp_path / "out"
     rep = _reconstruct(data, out, "--formats", "ply,glb,obj")
@@ -105,9 +106,11 @@ def test_an_object_capture_stands_on_its_table_with_its_base_centre_at_the_origi
     assert len(low) > 20 and _angle(vt[2] * np.sign(vt[2][1]), [0, 1, 0]) < 2.0
     # the box, 0.45 high before normalisation, stands 0.45 * unit high
     assert abs(V[:, 1].max() - BOX[2] * unit) < 2 * voxel
-    # the transform brings mesh.ply (the reconstruction's frame) onto the model
+    # the transform brings the model's source (an object's closed companion, mesh_closed.ply, in the
+    # reconstruction's frame) onto the model
+    assert rep["texture"]["surface"] == "closed"
     full = load_mesh(out / "mesh.ply")
-    moved = full.copy()
+    moved = load_mesh(out / "mesh_closed.ply")
     moved.apply_transform(T)
     pts = trimesh.sample.sample_surface(model, 5000, seed=0)[0]
     d = _surface_distance(moved, pts)
