@@ -17,7 +17,7 @@ import trimesh
 from ..arrays import unique_sorted
 from ..errors import BadArgumentError, EmptyMeshError
 from ..config_checks import check_config
-from .boundary import at_support
+from .boundary import at_support, boundary_directed
 from .convert import _vertex_colors, from_open3d, to_open3d
 from .fill import NO_FILL, fill_small_holes
 from .geometry import face_centres, face_cross, face_edge_keys, triangle_components
@@ -222,13 +222,11 @@ def largest_area(V: np.ndarray, T: np.ndarray, labels: np.ndarray, areas: np.nda
     for _ in range(BRIDGE_RINGS):
         if not len(F):
             break
-        keys, counts = unique_sorted(face_edge_keys(F, n), return_counts=True)
-        once = keys[counts == 1]
-        if not len(once):
+        edges = boundary_directed(F, n)
+        if not len(edges):
             break
         rim = np.zeros(n, bool)
-        rim[once // n] = True
-        rim[once % n] = True
+        rim[edges.ravel()] = True
         F = F[~rim[F].any(1)]
     if not len(F):
         return float(areas[big])

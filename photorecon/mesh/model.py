@@ -53,7 +53,7 @@ from ..io.atomic import atomic_path
 from ..layout import Layout
 from ..resources import available_bytes
 from .atlas import _merge_boxes, shelf_pack
-from .surface import carry_marks, model_surface
+from .surface import carry_marks, cleaning_facts, model_surface
 from .texture import TextureConfig, texture_mesh
 from .upright import Upright, upright_frame
 
@@ -252,9 +252,7 @@ def model_frame(mesh: trimesh.Trimesh, views: list[View], fusion: dict | None = 
     is wrong for a rig whose cameras hang upside down."""
     fusion = fusion if isinstance(fusion, dict) else {}
     scale = scale if isinstance(scale, dict) else {}
-    # the cleaning's facts as the mesh carries them, or as the fusion stage recorded them (a mesh read from disk)
-    meta = {k: v for src in (getattr(mesh, "metadata", None) or {}, fusion) for k, v in src.items()
-            if k in ("scene", "support_normal", "support_offset", "voxel_size")}
+    meta = cleaning_facts(mesh, fusion)
     bare = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     bare.metadata = meta
     units = "metres" if scale.get("units") == "metre" else "scene units (the reconstruction's, not metric)"

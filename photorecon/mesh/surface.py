@@ -37,12 +37,18 @@ def model_surface(mesh: trimesh.Trimesh, setting: str, layout: Layout,
             pass
     if filled is None or len(filled) != len(closed.faces):  # no PLY with its marks: closed here, as the fusion does
         src = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-        src.metadata = {k: v for d in (mesh.metadata or {}, fusion) for k, v in d.items()
-                        if k in ("scene", "support_normal", "support_offset", "voxel_size")}
+        src.metadata = cleaning_facts(mesh, fusion)
         closed = closed_companion(src)[0]
         filled = closed.face_attributes.get("filled")
     why = "--model-surface closed" if setting == "closed" else "an object capture: its closed companion, mesh_closed"
     return closed, invented_faces(mesh, closed, filled), why
+
+
+def cleaning_facts(mesh: trimesh.Trimesh, fusion: dict | None) -> dict:
+    """The cleaning's facts that the model's frame and its closing read (what ``--scene`` detected, the support
+    plane, the voxel), as the mesh carries them or as the fusion stage recorded them (a mesh read from disk)."""
+    return {k: v for src in (getattr(mesh, "metadata", None) or {}, fusion if isinstance(fusion, dict) else {})
+            for k, v in src.items() if k in ("scene", "support_normal", "support_offset", "voxel_size")}
 
 
 def invented_faces(mesh: trimesh.Trimesh, closed: trimesh.Trimesh, filled) -> np.ndarray:
