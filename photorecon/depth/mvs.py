@@ -206,7 +206,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         model = _restricted(model, _log_choice(choice, cfg))
     coarse = can_coarse and wants_coarse_cover(choice, cfg)
     views = _depth_plan(model, cfg, no_points, skipped)
-    cfg = m.adapt(cfg, views) if hasattr(m, "adapt") else cfg
+    cfg = m.adapt(cfg, views, cover=coarse) if hasattr(m, "adapt") else cfg
     work_root = Path(work_dir) if work_dir else out / ".mvs_work"
     ctx = MVSContext(dataset, cfg, views, work_root / work.work_key(dataset, cfg, views), out,
                       _filter_plan(model, views, cfg))

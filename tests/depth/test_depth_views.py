@@ -286,3 +286,55 @@ def test_half_resolution_depth_maps_fuse_as_well_as_full_ones(tmp_path):
     assert footprints["auto"] == pytest.approx(footprints["full"], rel=0.05)
     assert scores["full"][0] >= 0.88 and scores["auto"][0] >= scores["full"][0] - 0.01, scores
     assert scores["auto"][1] >= scores["full"][1] - 0.03, scores
+
+
+def test_cover_round_runs_near_a_fixed_size_whatever_the_working_resolution():
+    """The coarse round that chooses the views runs for every view: the default pyramid is deepened until that
+    round's long side is at most ``COVER_MAX_SIDE`` (1600 px: 4 levels, 200 px); an 800-px capture keeps 3 levels,
+    a pyramid set by the user and a capture without the cover are left as they are."""
+    from photorecon.cameras import Intrinsics
+    from photorecon.depth.methods import patchmatch as pm
+
+    def plan(w, h):
+        v = View("a", Intrinsics(w, h, w * 0.9, w * 0.9, w / 2, h / 2), np.eye(4))
+        return {"a": (v, ["b", "c"], (1.0, 2.0), None)}
+
+    cfg = MVSConfig()
+    assert pm.adapt(cfg, plan(1600, 1200), cover=True).pm_levels == 4
+    assert pm.adapt(cfg, plan(1600, 1600), cover=True).pm_levels == 4
+    assert pm.adapt(cfg, plan(2400, 1800), cover=True).pm_levels == 4  # 300 px
+    assert pm.adapt(cfg, plan(4000, 3000), cover=True).pm_levels == 5
+    assert pm.adapt(cfg, plan(800, 600), cover=True).pm_levels == 3
+    assert pm.adapt(cfg, plan(1600, 1200), cover=False).pm_levels == 3
+    assert pm.adapt(replace(cfg, pm_levels=2), plan(1600, 1200), cover=True).pm_levels == 2
+    for w in (64, 300, 301, 1600, 6000):
+        n = pm.cover_levels(3, w)
+        assert w / 2 ** (n - 1) <= pm.COVER_MAX_SIDE and (n == 3 or w / 2 ** (n - 2) > pm.COVER_MAX_SIDE)
+
+
+def test_large_capture_cover_round_at_the_deeper_pyramid(tmp_path, monkeypatch):
+    """On a capture the coarse round chooses, the chosen views' depth maps go through the deeper pyramid's every
+    round (one more than the default's) and still fuse to the object's surface."""
+    from photorecon.depth.methods import patchmatch as pm
+    from photorecon.depth.mvs import run_mvs
+    from photorecon.depth.views import COARSE_MIN_VIEWS
+    from photorecon.fusion import FusionConfig, fuse, load_frames
+    from photorecon.io.dataset import Dataset
+    from photorecon.metrics import mesh_metrics
+    from photorecon.synthetic import synthesize
+
+    monkeypatch.setattr(pm, "COVER_MAX_SIDE", 30)  # 192 px: 3 levels give 48, 4 give 24
+    data = tmp_path / "data"
+    synthesize(SynthConfig(scene="blob", views=COARSE_MIN_VIEWS + 8, width=192, height=144, points=3000, seed=3), data)
+    ds = Dataset.open(data)
+    ds = replace(ds, model=_short_tracks(ds.model, 3))
+    cfg = MVSConfig(n_sources=4, pm_iterations=3, depth_resolution="full")
+    rep = run_mvs(ds, tmp_path / "depth", cfg)
+    rounds = {int(k.partition(":")[0][2:]) for k in rep.task_seconds if k.startswith("pm")}
+    assert rounds == set(range(5))  # 4 levels, then the geometric round at full resolution
+    assert rep.depth_views["reason"] == "coverage, then coarse depth coverage"
+    dsd = Dataset.open(data, depth_dir=tmp_path / "depth")
+    frames = load_frames(dsd, FusionConfig(), [v for v in dsd.views if dsd.has_depth(v)])
+    m = mesh_metrics(fuse(frames, FusionConfig(trunc_voxels=3.0), dsd.model.points),
+                     trimesh.load(data / "gt_mesh.ply", process=False), n_samples=20_000)
+    assert m.fscore >= 0.97, m  # 0.9996 measured (3 levels: 1.000)

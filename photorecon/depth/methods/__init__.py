@@ -17,7 +17,8 @@ Two kinds of method:
   - ``run_task(ctx, name, *args) -> dict``: one task; the last one of a view passes the view's unfiltered depth
     to ``depth.work.finish_depth``; returns ``{"seconds", "cpu_seconds"}``, or ``{"seconds": 0.0, "reused":
     True}`` when its output is already in the work folder (a retry, a resumed run);
-  - optionally ``adapt(cfg, plan) -> cfg`` (settings for this plan), ``coarse_rounds(cfg) -> bool`` and
+  - optionally ``adapt(cfg, plan, cover) -> cfg`` (settings for this plan; ``cover``: the coarse round chooses
+    the views), ``coarse_rounds(cfg) -> bool`` and
     ``coarse_maps(ctx, executor, on_first)`` (a coarse depth map of every view first, for ``--depth-views
     coarse``; ``on_first(maps)`` gets those of the views computed first),
     ``NOTE`` (a warning the pipeline logs before running it) and ``HINT`` (what to try when too little depth is

@@ -31,18 +31,43 @@ SEEDS = True  # the sparse points a view sees start as planes of its first round
 PAIR_SETTINGS = {"pm_radius": 3, "pm_stride": 1, "pm_sigma_color": 0.05}
 
 
-def adapt(cfg, plan: dict):
-    """``cfg`` with ``PAIR_SETTINGS`` in place of the defaults when every view of the ``plan`` has one source."""
+# a capture whose views the coarse depth maps choose (``--depth-views coarse``, or auto on a large one) computes the
+# coarsest round for every view, most of which get no other: with the default pyramid it gets levels until that
+# round's long side is at most COVER_MAX_SIDE (at the default 1600 px: 4 levels, the round at 200 px instead of
+# 400, a quarter of its pixels; at 800 px the default 3 levels already give 200 px, where the cover's rules were
+# measured on gold_cape). The chosen views then go through one more, cheap round (one iteration, the sources the
+# coarser round used) on their way to their own resolution.
+COVER_MAX_SIDE = 300
+
+
+def adapt(cfg, plan: dict, cover: bool = False):
+    """``cfg`` for this ``plan``: ``PAIR_SETTINGS`` in place of the defaults when every view of the ``plan`` has
+    one source; with ``cover`` (the coarse round chooses the views), the default pyramid deepened until the
+    coarsest round's long side is at most ``COVER_MAX_SIDE`` (``cover_levels``)."""
     from ...config import MVSConfig
 
+    defaults = MVSConfig()
+    if cover and plan and cfg.pm_levels == defaults.pm_levels:
+        levels = cover_levels(cfg.pm_levels, max(max(p[0].intrinsics.size) for p in plan.values()))
+        if levels != cfg.pm_levels:
+            log.info("mvs: the coarse round at 1/%d of the working resolution (%d pyramid levels): it runs for every "
+                     "view", 2 ** (levels - 1), levels)
+            cfg = dataclasses.replace(cfg, pm_levels=levels)
     if not plan or any(len(p[1]) != 1 for p in plan.values()):
         return cfg
-    defaults = MVSConfig()
     changes = {k: v for k, v in PAIR_SETTINGS.items() if getattr(cfg, k) == getattr(defaults, k)}
     if changes:
         log.info("mvs: every view has one source view (a stereo pair): %s",
                  ", ".join(f"{k} {v}" for k, v in changes.items()))
     return dataclasses.replace(cfg, **changes)
+
+
+def cover_levels(levels: int, side: int) -> int:
+    """Pyramid levels, at least ``levels``, whose coarsest level of a ``side``-pixel long side is at most
+    ``COVER_MAX_SIDE`` (each level halves the image)."""
+    while side / 2 ** (levels - 1) > COVER_MAX_SIDE:
+        levels += 1
+    return levels
 
 
 def _jobs(ctx: work.MVSContext) -> dict:
