@@ -15,9 +15,10 @@ The capture defaults to ``gold_cape`` (../shared/data/gold_cape, or $PHOTORECON_
                                       [--repeats 2] [--leaf-max 60] [--keep DIR] [--json out.json]
 
 Mappers: ``incrementalN`` (photorecon's incremental options, N threads; photorecon maps on 1), ``global``
-(photorecon's GLOMAP options, all threads), ``hierarchical`` (pycolmap.hierarchical_mapping with photorecon's
-incremental options on 1 thread per cluster, clusters of at most ``--leaf-max`` photos mapped by as many
-workers as there are cores, then merged). Run on a quiet host: wall seconds on a shared one say little, CPU
+(photorecon's GLOMAP options, all threads), ``hierarchical`` (photorecon's hierarchical mapping,
+``mapping.map_model``: pycolmap.hierarchical_mapping with the incremental options on 1 thread per cluster,
+clusters of at most ``--leaf-max`` photos mapped by as many workers as there are cores, then merged; incremental
+mapping instead when it registers too few). Run on a quiet host: wall seconds on a shared one say little, CPU
 seconds less so.
 """
 from __future__ import annotations
@@ -62,20 +63,11 @@ def run_mapper(name: str, database: Path, images: Path, work: Path, leaf_max: in
     elif name == "global":
         mapping.map_model(db, images, model, cfg, False, "global")
     elif name == "hierarchical":
-        import pycolmap
-
-        pycolmap.set_random_seed(cfg.seed)
-        hopt = pycolmap.HierarchicalPipelineOptions()
-        hopt.incremental_options = mapping._incremental_options(pycolmap, cfg, False)
-        hopt.clustering_options.leaf_max_num_images = leaf_max
-        hopt.num_workers = os.cpu_count() or 1
-        hopt.num_threads = 1
-        runs = work / "runs"
-        runs.mkdir()
-        recs = list(pycolmap.hierarchical_mapping(str(db), str(images), str(runs), hopt).values())
-        model.mkdir()
-        if recs:
-            max(recs, key=lambda r: r.num_reg_images()).write_binary(str(model))
+        saved, mapping.HIERARCHICAL_LEAF_MAX = mapping.HIERARCHICAL_LEAF_MAX, leaf_max
+        try:
+            mapping.map_model(db, images, model, cfg, False, "hierarchical")
+        finally:
+            mapping.HIERARCHICAL_LEAF_MAX = saved
     else:
         raise SystemExit(f"--mappers: unknown mapper {name!r} (incrementalN, global, hierarchical)")
     return model
@@ -96,7 +88,8 @@ def main() -> None:
     ap.add_argument("--reference", type=Path, default=DATA / "gold_cape" / "reference", help="reference cameras (any camera format photorecon reads)")
     ap.add_argument("--mappers", default="incremental1,incremental2,global,hierarchical")
     ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--leaf-max", type=int, default=60, help="hierarchical: most photos per cluster")
+    ap.add_argument("--leaf-max", type=int, default=mapping.HIERARCHICAL_LEAF_MAX,
+                    help="hierarchical: most photos per cluster")
     ap.add_argument("--keep", type=Path, metavar="DIR", help="keep each run's model as DIR/MAPPER_RUN")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()

@@ -80,7 +80,7 @@ class SfMConfig:
     spatial_neighbors: int = field(default=20, metadata={"help": "spatial matching: nearest photos by EXIF GPS per photo", "range": (1, 100_000)})
     spatial_max_distance: float = field(default=100.0, metadata={"help": "spatial matching: no pair farther apart than this, metres", "range": (0, 1e7), "exclusive_min": True})
     spatial_ignore_z: bool = field(default=True, metadata={"help": "spatial matching: ignore GPS altitude (consumer GPS altitude is poor)"})
-    mapper: Literal["auto", "incremental", "global"] = field(default="auto", metadata={"help": "COLMAP incremental or global (GLOMAP) mapping; auto = global from --global-min images on"})
+    mapper: Literal["auto", "incremental", "hierarchical", "global"] = field(default="auto", metadata={"help": "COLMAP incremental, hierarchical (clusters mapped side by side, then merged; incremental again when it registers too few) or global (GLOMAP) mapping; auto = hierarchical from 100 images on, global from --global-min on"})
     global_min: int = field(default=GLOBAL_MIN, metadata={"help": "smallest image count --mapper auto maps globally", "range": (0, 10_000_000)})
     min_registered: float = field(default=0.5, metadata={"help": "fail when fewer than this fraction of the images register", "range": (0.0, 1.0)})
     threads: int = field(default=-1, metadata={"help": "threads (-1 = all cores)", "range": (1, 4096), "also": (-1,)})

@@ -52,3 +52,32 @@ def test_images_left_out_without_matches_are_not_mapped_again(tmp_path):
     assert _unmatchable(pycolmap, db, [_Model(ids[:1])], 15) == []
     # the largest model is the one asked about
     assert _unmatchable(pycolmap, db, [_Model(ids[:1]), _Model(ids[:2])], 15) == ["v2.png"]
+
+
+@pytest.mark.slow
+def test_hierarchical_mapping_registers_a_capture_split_in_clusters(sphere30, tmp_path, monkeypatch, caplog):
+    """Hierarchical mapping with clusters of at most 12 of 30 sphere views registers every view as accurately as
+    one incremental mapping; when it registers too small a share of the matched images, the same call maps them
+    incrementally instead and says so."""
+    import json
+    import logging
+
+    from photorecon.io.dataset import read_model
+    from photorecon.metrics import pose_metrics
+    from photorecon.poses import mapping
+    from photorecon.poses.sfm import SfMConfig, run_sfm
+
+    monkeypatch.setattr(mapping, "HIERARCHICAL_LEAF_MAX", 12)
+    out = tmp_path / "out"
+    ref = read_model(sphere30 / "sparse" / "0").views
+    run_sfm(sphere30 / "images", out, SfMConfig(mapper="hierarchical"))
+    assert json.loads((out / "colmap" / "sfm_report.json").read_text())["mapper"] == "hierarchical"
+    m = pose_metrics(read_model(out / "sparse" / "0").views, ref)
+    assert m["registered"] == 30 and m["rot_mean_deg"] < 0.2 and m["center_mean_rel"] < 0.01, m
+
+    monkeypatch.setattr(mapping, "HIERARCHICAL_MIN_SHARE", 1.01)  # no hierarchical model is accepted
+    db, images = out / "colmap" / "database.db", out / "colmap" / "images"
+    with caplog.at_level(logging.INFO, logger="photorecon"):
+        model = mapping.map_model(db, images, tmp_path / "again", SfMConfig(), False, "hierarchical")
+    assert "mapping them incrementally instead" in caplog.text
+    assert pycolmap.Reconstruction(str(model)).num_reg_images() == 30

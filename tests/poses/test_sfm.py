@@ -354,7 +354,8 @@ def test_choice_of_matching_and_mapper_by_count_video_and_gps():
     assert choose_matching(SfMConfig(matching="exhaustive"), 5000, 5000) == "exhaustive"
     with pytest.raises(BadArgumentError, match="1 of 90 photos carry EXIF GPS"):
         choose_matching(SfMConfig(matching="spatial"), 90, 1)
-    assert choose_mapper(cfg, 499) == "incremental" and choose_mapper(cfg, 500) == "global"
+    assert choose_mapper(cfg, 99) == "incremental" and choose_mapper(cfg, 100) == "hierarchical"
+    assert choose_mapper(cfg, 499) == "hierarchical" and choose_mapper(cfg, 500) == "global"
     assert choose_mapper(SfMConfig(mapper="incremental"), 10_000) == "incremental"
 
 
