@@ -30,8 +30,8 @@ log = logging.getLogger("photorecon")
 # 100 images incremental mapping takes minutes at most and a split has little to gain.
 HIERARCHICAL_MIN = 100
 HIERARCHICAL_LEAF_MAX = 60
-# a hierarchical model that registers fewer than this share of the images with verified matches (``_matched``)
-# is mapped again incrementally (with its relaxed retries), and the larger model kept
+# a hierarchical mapping whose largest model registers fewer than this share of the images with verified matches
+# (``_matched``) is discarded and the images mapped incrementally (with its relaxed retries) instead
 HIERARCHICAL_MIN_SHARE = 0.98
 
 
