@@ -60,8 +60,9 @@ def photorecon_imports(path, root):
 
 
 def coarse_maps(renderer, views, wrong: float = 0.03, background=None, relative: bool = False,
-                background_cost: float = 1.0, normals: bool = False, seed: int = 0) -> dict:
-    """Per view a depth map as PatchMatch's coarsest round gives it (a quarter of the resolution): view name ->
+                background_cost: float = 1.0, normals: bool = False, seed: int = 0, level: int = 2) -> dict:
+    """Per view a depth map as PatchMatch's coarsest round gives it (at pyramid ``level``: a quarter of the
+    resolution), view name ->
     (view at that level, depth, camera-frame normal, cost). The rendered z-depth with 0.3% noise, a fraction
     ``wrong`` of the surface's pixels at a random depth (0.5-2x; matched well all the same) at cost 0.2; off the
     surface depth 0, or uniform in ``background`` (times the view's median surface depth when ``relative``), at
@@ -73,7 +74,7 @@ def coarse_maps(renderer, views, wrong: float = 0.03, background=None, relative:
     rng = np.random.default_rng(seed)
     maps = {}
     for v in views:
-        lv = level_view(v, 2)
+        lv = level_view(v, level)
         r = renderer.render(lv)
         d = (r.depth * (1 + 0.003 * rng.standard_normal(r.depth.shape))).astype(np.float32)
         bad = r.mask & (rng.random(r.depth.shape) < wrong)

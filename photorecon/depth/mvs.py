@@ -42,6 +42,7 @@ import numpy as np
 from ..cameras import View
 from ..errors import NoDepthError
 from ..io.atomic import atomic_write_json
+from ..layout import DEPTH_RESOLUTIONS
 from ..results import Result
 from ..tasks import IN_PROCESS, Executor
 from ..fields import expect_config
@@ -100,7 +101,7 @@ class MVSResult(Result):
     seconds_per_view: float
     cpu_seconds_per_view: float  # the depth tasks' CPU seconds (all threads) per view, filter excluded
     cpu_seconds_per_mp_source: float  # the same per megapixel-source (views x sources x working megapixels)
-    per_view: dict  # view name -> valid_fraction, sources, size (w, h), resolution ("full" or "half") and why
+    per_view: dict  # view name -> valid_fraction, sources, size (w, h), resolution ("full", "half", "quarter") and why
     reused_tasks: int  # tasks whose output an interrupted run had left
     task_seconds: dict  # task key -> seconds
     depth_views: dict  # chosen, of, reason, uncovered_points (--depth-views)
@@ -176,8 +177,8 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
     first (a spread share of a large capture, ``views.first_look_views``), before the others' and before the
     chosen views' full depth maps (the pipeline makes a first look of them). ``mesh_footprint(maps, working)``:
     on such a capture with ``--depth-resolution auto``, the pixel footprint the fused mesh will keep, planned from
-    the coarse maps (``working``: view name -> view at its working resolution), or None; a view whose half-resolution
-    depth map has it gets that (``views.mesh_levels``)."""
+    the coarse maps (``working``: view name -> view at its working resolution), or None; a view whose half- or
+    quarter-resolution depth map has it gets that (``views.mesh_levels``)."""
     import shutil
 
     cfg = expect_config(cfg, MVSConfig, "cfg")
@@ -223,12 +224,14 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
         choice = coarse_choice if choice is None else coarse_choice.after(choice)
         model = _restricted(model, _log_choice(choice, cfg))
         views = _depth_plan(model, cfg, no_points, skipped)  # the sources among the chosen views
-        levels = {n: choice.level(n) for n in views if choice.level(n)}  # depth maps at half resolution
+        levels = {n: choice.level(n) for n in views if choice.level(n)}  # depth maps at half or quarter resolution
         if levels:
-            n_mesh = sum(1 for n in levels if n in choice.mesh_half)
-            log.info("mvs: %d of %d depth maps at half resolution (--depth-resolution %s: %d where the fused mesh "
-                     "keeps no finer detail than a half-resolution map has, %d where full-resolution views see their "
-                     "surface as finely)", len(levels), len(views), cfg.depth_resolution, n_mesh, len(levels) - n_mesh)
+            n_mesh = sum(1 for n in levels if n in choice.mesh_coarser)
+            n_quarter = sum(1 for lvl in levels.values() if lvl == 2)
+            log.info("mvs: %d of %d depth maps at half resolution and %d at a quarter (--depth-resolution %s: %d where "
+                     "the fused mesh keeps no finer detail than that map has, %d where full-resolution views see their "
+                     "surface as finely)", len(levels) - n_quarter, len(views), n_quarter, cfg.depth_resolution,
+                     n_mesh, len(levels) - n_mesh)
         ctx = dataclasses.replace(ctx, plan=views, filter_sources=_filter_plan(model, views, cfg), levels=levels)
     t_graph = time.perf_counter()
     # the bar counts tasks (each view's PatchMatch rounds, then its filter), not views
@@ -262,7 +265,7 @@ def run_mvs(dataset, out_dir: str | Path | None = None, cfg: MVSConfig | None = 
             continue
         stats[v.name] = {k: r[k] for k in ("valid_fraction", "sources", "size")}
         why = choice.resolution_reason(v.name) if choice is not None else None
-        stats[v.name]["resolution"] = "half" if work.depth_level(ctx, v.name) else "full"
+        stats[v.name]["resolution"] = DEPTH_RESOLUTIONS[work.depth_level(ctx, v.name)]
         if why:
             stats[v.name]["resolution_reason"] = why
     if not stats:

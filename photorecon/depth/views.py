@@ -20,6 +20,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..cameras import backproject_pixels, depth_footprint
+from ..io.dataset import MIN_DEPTH_SIDE
+from ..layout import DEPTH_RESOLUTIONS
 
 log = logging.getLogger("photorecon")
 
@@ -40,9 +42,10 @@ class ViewChoice:
     # coarse surface that full-resolution views see as finely from a similar direction); empty: every view full
     resolution: dict = field(default_factory=dict)
     # the pixel footprint the fused mesh's voxel asks of the depth maps (``mesh_levels``), and the chosen views whose
-    # half-resolution map has it (view -> its footprint at the working resolution); None / empty: not planned
+    # map at a coarser level has it (view -> (that level: 1 half, 2 quarter, its footprint at the working
+    # resolution)); None / empty: not planned
     mesh_footprint: float | None = None
-    mesh_half: dict = field(default_factory=dict)
+    mesh_coarser: dict = field(default_factory=dict)
 
     def after(self, first: "ViewChoice") -> "ViewChoice":
         """This choice, made among the views ``first`` chose: counted against ``first``'s total, both reasons."""
@@ -51,21 +54,27 @@ class ViewChoice:
     def to_dict(self) -> dict:
         d = {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
              "uncovered_points": self.uncovered_points}
-        if self.resolution or self.mesh_half:
-            d["half_resolution"] = sum(1 for n in self.chosen if self.level(n) > 0)
+        if self.resolution or self.mesh_coarser:
+            d["half_resolution"] = sum(1 for n in self.chosen if self.level(n) == 1)
+            if any(self.level(n) > 1 for n in self.chosen):
+                d["quarter_resolution"] = sum(1 for n in self.chosen if self.level(n) == 2)
         if self.mesh_footprint is not None:
             d["mesh_footprint"] = self.mesh_footprint
         return d if self.surface_samples is None else {**d, "surface_samples": self.surface_samples}
 
     def level(self, name: str) -> int:
-        """The pyramid level of view ``name``'s depth map (0: the working resolution, 1: half of it)."""
-        return 1 if name in self.mesh_half else self.resolution.get(name, (0, 0.0))[0]
+        """The pyramid level of view ``name``'s depth map (0: the working resolution, 1: half of it, 2: a quarter)."""
+        if name in self.mesh_coarser:
+            return self.mesh_coarser[name][0]
+        return self.resolution.get(name, (0, 0.0))[0]
 
     def resolution_reason(self, name: str) -> str | None:
         """Why view ``name``'s depth map has its resolution (for the report), or None when no choice was made."""
-        if name in self.mesh_half:
-            return (f"half: the fused mesh's voxel keeps detail down to a footprint of {self.mesh_footprint:.3g}, "
-                    f"and this view's half-resolution map has {MESH_LEVEL_SCALE * self.mesh_half[name]:.3g}")
+        if name in self.mesh_coarser:
+            lvl, own = self.mesh_coarser[name]
+            size = DEPTH_RESOLUTIONS[lvl]
+            return (f"{size}: the fused mesh's voxel keeps detail down to a footprint of {self.mesh_footprint:.3g}, "
+                    f"and this view's {size}-resolution map has {2 ** lvl * own:.3g}")
         if name not in self.resolution:
             return None
         lvl, seen = self.resolution[name]
@@ -221,11 +230,13 @@ def half_resolution_views(vi: np.ndarray, pi: np.ndarray, u: np.ndarray, foot: n
     return out
 
 
-# --depth-resolution auto: a chosen view whose depth map at half the working resolution still has a pixel footprint
-# at most the one the fused mesh's voxel asks for (``mesh_levels``: the voxel under the fusion's memory budget, over
-# its voxel footprints) gets it at half resolution: a finer map resolves what the mesh does not keep (on 119
-# photos at 1600 px, the 2 GB default budget's mesh keeps a voxel of about 4 footprints of the full maps)
-MESH_LEVEL_SCALE = 2.0
+# --depth-resolution auto: a chosen view whose depth map at half (or a quarter of) the working resolution still has a
+# pixel footprint at most the one the fused mesh's voxel asks for (``mesh_levels``: the voxel under the fusion's
+# memory budget, over its voxel footprints) gets it at that resolution: a finer map resolves what the mesh does not
+# keep (on 119 photos at 1600 px, the 2 GB default budget's mesh keeps a voxel of about 4 footprints of the full
+# maps). At most MESH_LEVEL_MAX levels down, and at least one level finer than the coarse round, so that every
+# chosen view gets a round with the geometric term
+MESH_LEVEL_MAX = 2
 
 
 def map_footprint(depth: np.ndarray, cost: np.ndarray, working) -> float | None:
@@ -261,17 +272,29 @@ def confirmed_surface(maps: dict, sources: dict, need: int) -> dict:
     return out
 
 
+def coarse_level(coarse, working) -> int:
+    """The pyramid level of a coarse map's view ``coarse`` below its view at the working resolution ``working``."""
+    return max(0, int(round(np.log2(working.intrinsics.width / coarse.intrinsics.width))))
+
+
 def mesh_levels(choice: ViewChoice, working: dict, maps: dict, need: float) -> ViewChoice:
-    """``choice`` with its chosen views whose half-resolution depth map has a footprint of at most ``need`` (the
-    one the fused mesh's voxel asks for) at half resolution (``ViewChoice.mesh_half``); ``working``: view name ->
-    the view at its working resolution, ``maps``: view name -> (view at the coarse level, depth, normal, cost)."""
-    half = {}
+    """``choice`` with each chosen view at the coarsest level (at most ``MESH_LEVEL_MAX``, finer than its coarse map's,
+    and a map of at least ``MIN_DEPTH_SIDE`` px on its long side) whose depth map has a footprint of at most ``need`` (the one the fused mesh's voxel asks for)
+    (``ViewChoice.mesh_coarser``); ``working``: view name -> the view at its working resolution, ``maps``: view
+    name -> (view at the coarse level, depth, normal, cost)."""
+    coarser = {}
     for name in choice.chosen:
         if name in maps and name in working:
             f0 = map_footprint(maps[name][1], maps[name][3], working[name])
-            if f0 is not None and MESH_LEVEL_SCALE * f0 <= need:
-                half[name] = f0
-    return replace(choice, mesh_footprint=float(need), mesh_half=half)
+            top = min(MESH_LEVEL_MAX, coarse_level(maps[name][0], working[name]) - 1)
+            side = max(working[name].intrinsics.size)
+            lvl = 0
+            while (f0 is not None and lvl < top and 2 ** (lvl + 1) * f0 <= need
+                   and side / 2 ** (lvl + 1) >= MIN_DEPTH_SIDE):
+                lvl += 1
+            if lvl:
+                coarser[name] = (lvl, f0)
+    return replace(choice, mesh_footprint=float(need), mesh_coarser=coarser)
 
 
 # the first look (``run_mvs``'s ``on_coarse``) of a capture with at least FIRST_LOOK_SPLIT_MIN views comes from the

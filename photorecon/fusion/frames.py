@@ -16,6 +16,7 @@ import numpy as np
 
 from ..cameras import View, backproject_pixels, depth_footprint, valid_depth_mask
 from ..errors import BadArgumentError, InputDataError, NoDepthError
+from ..layout import DEPTH_RESOLUTIONS
 from .config import DepthFrame, FusionConfig
 
 log = logging.getLogger("photorecon")
@@ -69,8 +70,8 @@ def pixel_footprint(frames: list[DepthFrame]) -> float:
     """The depth maps' pixel footprint on the surfaces the cameras look at, in scene units: per view the
     median ``z / f`` of the valid pixels of its central window (half the width and height; the whole map when
     that window has under 5% valid pixels), with ``f`` of the depth map's own intrinsics, as it would be at its
-    view's working resolution (``DEPTH_LEVEL``: a depth map the depth stage left at half resolution counts with
-    half its own footprint, and does not coarsen the voxel); the median over views.
+    view's working resolution (``DEPTH_LEVEL``: a depth map the depth stage left at half or quarter resolution counts
+    with half or a quarter of its own footprint, and does not coarsen the voxel); the median over views.
     Far background at the image borders and outlying sparse points do not move it."""
     per_view = [own / 2 ** f.view.extra.get(DEPTH_LEVEL, 0) for f in frames
                 if (own := frame_footprint(f)) is not None]
@@ -86,7 +87,8 @@ def frame_footprint(f: DepthFrame) -> float | None:
 
 
 DEPTH_LEVEL = "depth_level"  # View.extra of a depth frame's view: the pyramid level of its depth map below its view's
-# working resolution (the depth stage's ``mvs_report.json``, ``per_view[NAME]["resolution"]``: 1 = half), absent = 0
+# working resolution (the depth stage's ``mvs_report.json``, ``per_view[NAME]["resolution"]``: 1 = half, 2 = quarter),
+# absent = 0
 
 
 def resolution_weights(frames, need: float | None = None) -> list[float]:
@@ -117,7 +119,9 @@ def depth_levels(dataset) -> dict[str, int]:
         per_view = json.loads(path.read_text()).get("per_view", {}) if path is not None and path.is_file() else {}
     except (OSError, ValueError, AttributeError):
         return {}
-    return {n: 1 for n, s in per_view.items() if isinstance(s, dict) and s.get("resolution") == "half"}
+    by_name = {name: lvl for lvl, name in DEPTH_RESOLUTIONS.items()}
+    return {n: by_name[r] for n, s in per_view.items()
+            if isinstance(s, dict) and (r := s.get("resolution")) in by_name and by_name[r]}
 
 
 def depth_view(view: View, shape: tuple[int, int]) -> View:
@@ -265,7 +269,7 @@ def load_frames(dataset, cfg: FusionConfig, views: list[View] | None = None,
     kept on disk, and read from there when used (TSDF fusion streams them), so the memory they take does not
     grow with the view count."""
     frames, missing, store = [], [], None
-    levels = depth_levels(dataset)  # depth maps the depth stage left at half resolution
+    levels = depth_levels(dataset)  # depth maps the depth stage left at half or quarter resolution
     held, originals = 0, []  # the dataset's views of ``frames`` (a frame's view is scaled to its depth map)
     for v in views or dataset.views:
         if not dataset.has_depth(v):

@@ -338,3 +338,42 @@ def test_large_capture_cover_round_at_the_deeper_pyramid(tmp_path, monkeypatch):
     m = mesh_metrics(fuse(frames, FusionConfig(trunc_voxels=3.0), dsd.model.points),
                      trimesh.load(data / "gt_mesh.ply", process=False), n_samples=20_000)
     assert m.fscore >= 0.97, m  # 0.9996 measured (3 levels: 1.000)
+
+
+@pytest.mark.slow
+def test_quarter_resolution_depth_maps_where_the_mesh_keeps_no_finer_detail(tmp_path, monkeypatch):
+    """The capture of ``test_large_capture_cover_round_at_the_deeper_pyramid`` with a mesh that keeps no detail
+    finer than a quarter-resolution map has (``mesh_footprint`` says so): every chosen view stops after the
+    quarter-resolution round (its map 80x60, no round after it), the report says quarter and why, the fusion reads
+    them back at that level, and they still fuse to the object's surface."""
+    from photorecon.depth.methods import patchmatch as pm
+    from photorecon.depth.mvs import run_mvs
+    from photorecon.depth.views import COARSE_MIN_VIEWS
+    from photorecon.fusion import FusionConfig, fuse, load_frames
+    from photorecon.fusion.frames import DEPTH_LEVEL, frame_footprint
+    from photorecon.io.dataset import Dataset
+    from photorecon.metrics import mesh_metrics
+    from photorecon.synthetic import synthesize
+
+    monkeypatch.setattr(pm, "COVER_MAX_SIDE", 50)  # 320 px: 4 levels, the coarse round at 40 px
+    data = tmp_path / "data"
+    synthesize(SynthConfig(scene="blob", views=COARSE_MIN_VIEWS + 8, width=320, height=240, points=3000, seed=3), data)
+    ds = Dataset.open(data)
+    ds = replace(ds, model=_short_tracks(ds.model, 3))
+    cfg = MVSConfig(n_sources=4, pm_iterations=3)
+    rep = run_mvs(ds, tmp_path / "depth", cfg, mesh_footprint=lambda maps, working: 1.0)  # coarser than any map
+    rounds = {int(k.partition(":")[0][2:]) for k in rep.task_seconds if k.startswith("pm")}
+    assert rounds == {0, 1}  # the coarse round at an eighth, then the quarter-resolution one
+    assert rep.depth_views["quarter_resolution"] == len(rep.per_view) > 10, rep.depth_views
+    for n, s in rep.per_view.items():
+        assert s["resolution"] == "quarter" and tuple(s["size"]) == (80, 60), s
+        assert s["resolution_reason"].startswith("quarter: the fused mesh's voxel")
+    dsd = Dataset.open(data, depth_dir=tmp_path / "depth")
+    frames = load_frames(dsd, FusionConfig(), [v for v in dsd.views if dsd.has_depth(v)])
+    assert {f.view.extra.get(DEPTH_LEVEL) for f in frames} == {2}
+    # the voxel the mesh would keep: 1.5 footprints of the quarter-resolution maps (the fusion's own rule counts
+    # them at the working resolution, for a budget that keeps a finer voxel)
+    voxel = 1.5 * float(np.median([frame_footprint(f) for f in frames]))
+    m = mesh_metrics(fuse(frames, FusionConfig(voxel_size=voxel, trunc_voxels=3.0), dsd.model.points),
+                     trimesh.load(data / "gt_mesh.ply", process=False), n_samples=20_000)
+    assert m.fscore >= 0.95, m  # 0.983 measured (32 depth maps)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import coarse_maps
-from photorecon.depth.views import (MESH_LEVEL_SCALE, confirmed_surface, first_look_views, map_footprint, mesh_levels,
+from photorecon.depth.views import (MESH_LEVEL_MAX, confirmed_surface, first_look_views, map_footprint, mesh_levels,
                                     spread_views, ViewChoice)
 from photorecon.fusion import FusionConfig
 from photorecon.fusion.budget import MESH_BYTES_PER_FACE, estimate_faces, planned_footprint, tsdf_voxel_size
@@ -70,16 +70,43 @@ def test_views_get_half_resolution_only_where_the_mesh_keeps_no_finer_detail(sce
     v0, _ = tsdf_voxel_size(frames, FusionConfig(memory_gb=0))
     need = planned_footprint(surface, working, FusionConfig(memory_gb=0))
     assert abs(need * 1.5 / v0 - 1) <= 0.1
-    assert not mesh_levels(choice, working, maps, need).mesh_half
+    assert not mesh_levels(choice, working, maps, need).mesh_coarser
     faces = estimate_faces(frames, v0)
     cfg = FusionConfig(memory_gb=faces * MESH_BYTES_PER_FACE / 6 / 0.5 / 2 ** 30)  # voxel about 2.4x
     need = planned_footprint(surface, working, cfg)
     got = mesh_levels(choice, working, maps, need)
-    assert set(got.mesh_half) == set(choice.chosen) and all(got.level(n) == 1 for n in choice.chosen)
+    assert set(got.mesh_coarser) == set(choice.chosen) and all(got.level(n) == 1 for n in choice.chosen)
     name = choice.chosen[0]
-    assert MESH_LEVEL_SCALE * map_footprint(maps[name][1], maps[name][3], working[name]) <= need
+    assert 2 * map_footprint(maps[name][1], maps[name][3], working[name]) <= need
     assert got.resolution_reason(name).startswith("half: the fused mesh's voxel")
     assert got.to_dict()["half_resolution"] == len(views) and got.to_dict()["mesh_footprint"] == pytest.approx(need)
+
+
+def test_views_get_a_quarter_of_the_resolution_where_the_mesh_keeps_no_finer_detail_than_that(scene):
+    """A budget that makes the voxel about 5x the full maps' 1.5 footprints: with coarse maps at an eighth of the
+    resolution every view gets a quarter (its quarter-resolution footprint within the voxel's need, its eighth
+    not), says so and counts as such; with the coarse maps at a quarter, the views stop at half, one level finer
+    than the coarse round (every chosen view gets a round with the geometric term)."""
+    renderer, views = scene
+    working = {v.name: v for v in views}
+    choice = ViewChoice([v.name for v in views], len(views), "coarse depth coverage")
+    frames = _true_frames(renderer, views)
+    v0, _ = tsdf_voxel_size(frames, FusionConfig(memory_gb=0))
+    faces = estimate_faces(frames, v0)
+    cfg = FusionConfig(memory_gb=faces * MESH_BYTES_PER_FACE / 25 / 0.5 / 2 ** 30)
+    eighth = coarse_maps(renderer, views, background=(1.5, 6.0), relative=True, background_cost=0.3, level=3)
+    need = planned_footprint(confirmed_surface(eighth, _sources(views), 2), working, cfg)
+    got = mesh_levels(choice, working, eighth, need)
+    assert MESH_LEVEL_MAX == 2 and all(got.level(n) == 2 for n in choice.chosen), got.mesh_coarser
+    name = choice.chosen[0]
+    f0 = map_footprint(eighth[name][1], eighth[name][3], working[name])
+    assert 4 * f0 <= need < 8 * f0
+    assert got.resolution_reason(name).startswith("quarter: the fused mesh's voxel")
+    assert got.to_dict()["quarter_resolution"] == len(views) and got.to_dict()["half_resolution"] == 0
+    quarter = coarse_maps(renderer, views, background=(1.5, 6.0), relative=True, background_cost=0.3)
+    capped = mesh_levels(choice, working, quarter, need)
+    assert all(capped.level(n) == 1 for n in choice.chosen)
+    assert "quarter_resolution" not in capped.to_dict()
 
 
 def test_the_first_look_views_are_spread_around_the_capture():
@@ -115,3 +142,17 @@ def test_a_half_resolution_map_that_resolves_the_voxel_weighs_as_a_full_one(scen
     assert resolution_weights([full, half], own / 2) == [1.0, 0.25]
     assert resolution_weights([full, half], own) == [1.0, 1.0]
     assert resolution_weights([full, half], 0.75 * own)[1] == pytest.approx(0.5625)
+
+
+def test_the_fusion_reads_each_depth_maps_level_from_the_depth_report(tmp_path):
+    """``fusion.frames.depth_levels`` reads the resolution the depth stage gave each view in mvs_report.json: half
+    is level 1, quarter level 2; full and names it does not know are the working resolution."""
+    import json
+    from types import SimpleNamespace
+
+    from photorecon.fusion.frames import depth_levels
+
+    per_view = {"a": {"resolution": "full"}, "b": {"resolution": "half"}, "c": {"resolution": "quarter"},
+                "d": {"resolution": "eighth"}, "e": {}}
+    (tmp_path / "mvs_report.json").write_text(json.dumps({"per_view": per_view}))
+    assert depth_levels(SimpleNamespace(depth_dir=str(tmp_path))) == {"b": 1, "c": 2}
