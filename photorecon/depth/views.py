@@ -279,9 +279,9 @@ def coarse_level(coarse, working) -> int:
 
 def mesh_levels(choice: ViewChoice, working: dict, maps: dict, need: float) -> ViewChoice:
     """``choice`` with each chosen view at the coarsest level (at most ``MESH_LEVEL_MAX``, finer than its coarse map's,
-    and a map of at least ``MIN_DEPTH_SIDE`` px on its long side) whose depth map has a footprint of at most ``need`` (the one the fused mesh's voxel asks for)
-    (``ViewChoice.mesh_coarser``); ``working``: view name -> the view at its working resolution, ``maps``: view
-    name -> (view at the coarse level, depth, normal, cost)."""
+    and a map of at least ``MIN_DEPTH_SIDE`` px on its long side) whose depth map has a footprint of at most
+    ``need``, the one the fused mesh's voxel asks for (``ViewChoice.mesh_coarser``); ``working``: view name -> the
+    view at its working resolution, ``maps``: view name -> (view at the coarse level, depth, normal, cost)."""
     coarser = {}
     for name in choice.chosen:
         if name in maps and name in working:
