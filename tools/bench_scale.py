@@ -19,7 +19,8 @@ reference`` gives ``photorecon reconstruct`` the set's reference cameras (``--po
 ``--baseline COMMIT_OR_PATH`` then runs the same command with another version's code on the same set (output
 under ``--work``/baseline) and prints per stage both CPU seconds and current/baseline, the end-to-end wall and
 CPU ratios and, end to end, how much of each mesh lies near the other (``OUT/mesh.ply``: fraction of one's
-surface samples within 0.5% of the baseline mesh's bounding-box diagonal of the other). The baseline is a folder
+surface samples within 0.5% of the baseline mesh's bounding-box diagonal of the other; from photos, each mesh is first
+moved into the reference cameras' world by the Sim3 that aligns its run's cameras to them). The baseline is a folder
 with ``.venv/bin/photorecon`` (a git worktree with its own venv), or a commit: its worktree
 ``/tmp/photorecon-baseline-SHA12`` and venv are made once and reused. Each side runs its own
 ``photorecon`` executable (this side: this repository's ``.venv/bin/photorecon``, else the one beside
@@ -260,18 +261,25 @@ def compare(cur: dict, base: dict) -> dict:
             "cpu_ratio": _ratio(cur.get("cpu_s"), base.get("cpu_s"))}
 
 
-def compare_meshes(cur_out: Path, base_out: Path, n: int = 200_000) -> dict:
+def compare_meshes(cur_out: Path, base_out: Path, n: int = 200_000, ref: list | None = None) -> dict:
     """How much of each ``mesh.ply`` lies within 0.5% of the baseline mesh's bounding-box diagonal of the other:
-    ``base_near_cur`` (fraction of the baseline's surface samples near the current mesh) and ``cur_near_base``."""
+    ``base_near_cur`` (fraction of the baseline's surface samples near the current mesh) and ``cur_near_base``.
+    ``ref``: the set's reference cameras; each mesh is first moved into their world with the Sim3 that aligns its
+    own output's cameras (``sparse/0``) to them, as two SfM runs each choose their own frame and scale."""
     import trimesh
 
+    from photorecon.io.dataset import read_model
     from photorecon.metrics import mesh_metrics
+    from photorecon.metrics.poses import align_by_cameras
 
     paths = [cur_out / "mesh.ply", base_out / "mesh.ply"]
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         return {"error": "no " + ", ".join(missing)}
     cur, base = (trimesh.load(p, force="mesh", process=False) for p in paths)
+    if ref is not None:
+        cur, base = (align_by_cameras(m, read_model(out / "sparse" / "0").views, ref)[0]
+                     for m, out in ((cur, cur_out), (base, base_out)))
     diag = float(np.linalg.norm(base.bounds[1] - base.bounds[0]))
     tau = 0.005 * diag
     try:
@@ -364,7 +372,8 @@ def main() -> None:
             rows.append(base)
             cmp = {"set": name, **compare(rows[-2], base)}
             if a.e2e or poses is not None:
-                cmp["mesh"] = compare_meshes(a.work / name, a.work / "baseline" / name)
+                cmp["mesh"] = compare_meshes(a.work / name, a.work / "baseline" / name,
+                                             ref=ref if poses is None else None)
             comparisons.append(cmp)
             pairs.append((rows[-2], base, cmp))
             print(table(rows[-1:]), flush=True)
