@@ -14,8 +14,9 @@ def view(sub):
     from ..report import LIVE_MAX_FACES, PAGE_MAX_FACES
 
     p = sub.add_parser("view", help="look at a result: the mesh and the cameras in a browser (served on localhost)",
-                       description="Serves an interactive 3D view of a result (the mesh, the cameras as frusta with "
-                                   "their images) with viser on http://HOST:PORT until Ctrl-C; or, with --html FILE, "
+                       description="Serves an interactive 3D view of a result (its textured model, model.glb, when "
+                                   "it has one, with a switch to the mesh; the cameras as frusta with their images) "
+                                   "with viser on http://HOST:PORT until Ctrl-C; or, with --html FILE, "
                                    "writes a standalone viewer page (one file, no server, no network) and exits.")
     p.add_argument("result", help="result folder (OUT of 'reconstruct' or 'fuse') or a mesh file (never written to)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: 127.0.0.1, this machine only)")
@@ -37,6 +38,7 @@ def _run_view(args):
     from ..errors import BadArgumentError
     from ..report import (LIVE_MAX_FACES, PAGE_MAX_FACES, load_result, start_viewer_server, stop_viewer_server,
                          write_viewer_page)
+    from ..report.result import result_model
 
     if args.max_faces is not None and args.max_faces < 4:
         raise BadArgumentError(f"--max-faces: expected >= 4, got {args.max_faces}")
@@ -52,13 +54,15 @@ def _run_view(args):
                                  max_faces=args.max_faces or PAGE_MAX_FACES)
         print(f"view: {len(mesh.faces):,} faces, {len(cameras)} cameras -> {path} (open it in a browser)")
         return 0
+    model = result_model(args.result)
     try:
         server = start_viewer_server(mesh, cameras, images, args.host, args.port, args.max_faces or LIVE_MAX_FACES,
-                                     args.lighting)
+                                     args.lighting, model)
     except OSError as exc:
         raise BadArgumentError(f"--host {args.host} --port {args.port}: cannot serve there ({exc})") from None
     host = server.get_host()
-    print(f"view: {len(mesh.faces):,} faces, {len(cameras)} cameras at http://{host}:{server.get_port()} "
+    shows = "the textured model (model.glb) and " if model is not None else ""
+    print(f"view: {shows}{len(mesh.faces):,} faces, {len(cameras)} cameras at http://{host}:{server.get_port()} "
           "(Ctrl-C to stop)", flush=True)
     try:
         while True:

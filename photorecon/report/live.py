@@ -1,5 +1,6 @@
-"""``photorecon view``: a live viewer on localhost (viser) showing the mesh and the cameras as frusta with their
-photos, served only to the viewer's own page (``viewer_request_refusal``)."""
+"""``photorecon view``: a live viewer on localhost (viser) showing the textured model (model.glb, when the result has
+one) or the mesh, and the cameras as frusta with their photos, served only to the viewer's own page
+(``viewer_request_refusal``)."""
 from __future__ import annotations
 
 import contextlib
@@ -157,12 +158,33 @@ def _guarded_websockets(served_host: str):
             ws_server.serve = original
 
 
+def model_placement(texture: dict | None) -> dict:
+    """viser's ``scale``, ``wxyz`` and ``position`` of a node that puts model.glb's points into the reconstruction's
+    frame (``textured.model_to_reconstruction``: a rotation, a translation and a uniform scale), for ``texture``:
+    report.json's texture section. Raises ValueError when that section's frame is no such transform."""
+    from ..conventions import quat_from_rotation
+    from .textured import model_to_reconstruction
+
+    back = model_to_reconstruction(texture)
+    det = float(np.linalg.det(back[:3, :3]))
+    if not det > 0:
+        raise ValueError("report.json's texture.frame.model_from_reconstruction does not keep handedness")
+    s = det ** (1.0 / 3.0)
+    R = back[:3, :3] / s
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+        raise ValueError("report.json's texture.frame.model_from_reconstruction is no rotation, shift and scale")
+    return {"scale": s, "wxyz": quat_from_rotation(R), "position": back[:3, 3].copy()}
+
+
 def start_viewer_server(mesh: trimesh.Trimesh, cameras: list[View] | None = None,
                         images: dict[str, Path] | None = None, host: str = "127.0.0.1", port: int = 8080,
-                        max_faces: int = LIVE_MAX_FACES, lighting: str = "environment"):
+                        max_faces: int = LIVE_MAX_FACES, lighting: str = "environment",
+                        model: tuple[bytes, dict] | None = None):
     """A viser server showing ``mesh`` (decimated to ``max_faces``) and the ``cameras`` as frusta with their
-    images (``images``: view name -> image file) as thumbnails. Returns the running ``viser.ViserServer``
-    (``get_port()`` gives the bound port; ``stop()`` ends it)."""
+    images (``images``: view name -> image file) as thumbnails. ``model``: (model.glb's bytes, its placement in the
+    reconstruction's frame, ``model_placement``): the textured model is shown instead of the mesh, with a checkbox
+    to switch between them. Returns the running ``viser.ViserServer`` (``get_port()`` gives the bound port;
+    ``stop()`` ends it)."""
     try:
         import viser
     except ImportError:
@@ -196,7 +218,18 @@ def start_viewer_server(mesh: trimesh.Trimesh, cameras: list[View] | None = None
     else:
         server.scene.configure_environment_map(environment_intensity=0.8)
     server.scene.configure_default_lights(enabled=True, cast_shadow=False)
-    server.scene.add_glb("/mesh", _matte_glb(shown), cast_shadow=False, receive_shadow=False)
+    shown_mesh = server.scene.add_glb("/mesh", _matte_glb(shown), cast_shadow=False, receive_shadow=False,
+                                      visible=model is None)
+    if model is not None:
+        glb, placement = model
+        textured = server.scene.add_glb("/model", glb, cast_shadow=False, receive_shadow=False, **placement)
+        toggle = server.gui.add_checkbox("textured model (model.glb)", True,
+                                         hint="off: the full mesh with vertex colours (mesh.ply)")
+
+        @toggle.on_update
+        def _(_event) -> None:
+            textured.visible = toggle.value
+            shown_mesh.visible = not toggle.value
     scale = frustum_scale(view, cameras) if cameras else 1.0
     for cam in cameras or []:
         W, H = cam.intrinsics.size

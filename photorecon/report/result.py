@@ -125,6 +125,29 @@ def _load_result(path: Path) -> tuple[trimesh.Trimesh, list[View], dict[str, Pat
     return mesh, cameras, images
 
 
+def result_model(path: str | Path) -> tuple[bytes, dict] | None:
+    """A result folder's textured model for the live viewer: (OUT/model.glb's bytes, its placement in the frame of
+    OUT's mesh and cameras, ``live.model_placement`` from report.json's texture section), or None when ``path`` is
+    a mesh file or a folder without model.glb. A model whose placement cannot be read is left out with a warning
+    (the mesh is shown)."""
+    import json
+
+    from .live import model_placement
+
+    out = Path(path)
+    glb = Layout(out).model("glb") if out.is_dir() else None
+    if glb is None or not glb.is_file():
+        return None
+    try:
+        report = json.loads(Layout(out).report_json.read_text()) if Layout(out).report_json.is_file() else {}
+        texture = report.get("texture") if isinstance(report, dict) else None
+        placement = model_placement(texture if isinstance(texture, dict) else None)
+        return glb.read_bytes(), placement
+    except (OSError, ValueError) as exc:
+        log.warning("view: %s is not shown (%s); showing the mesh", glb, exc)
+        return None
+
+
 def result_cameras(folder: Path) -> list[View]:
     """The cameras of a result folder (OUT/sparse/0 or OUT/transforms.json), or [] when it has none."""
     if not (Layout(folder).sparse.is_dir() or Layout(folder).transforms.is_file()):

@@ -230,3 +230,63 @@ def test_textured_view_draws_the_photos_colours_and_toggles_to_the_mesh(textured
     mesh = mesh_img[mesh_px].astype(float)
     assert greenness(mesh) > 60 and greenness(px) < 30, (greenness(mesh), greenness(px))
     assert nw > 300 and right <= 300 and scroll <= 300 and abs(h / w - nh / nw) < 0.02, (right, w, h, nw, nh, scroll)
+
+
+def _with_report_json(textured, tmp_path):
+    """A copy of the textured result folder with its report.json (as ``reconstruct`` writes it)."""
+    import json
+
+    out, info = textured
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    (copy / "report.json").write_text(json.dumps(_report(info)))
+    return copy, info
+
+
+def test_live_view_places_the_textured_model_in_the_cameras_frame(textured, tmp_path):
+    """``photorecon view``'s node for model.glb (scale, rotation, position from report.json's frame) puts the
+    model's points where the report's own reading of it has them: on mesh.ply's surface, in the cameras' frame."""
+    from scipy.spatial.transform import Rotation
+
+    from photorecon.report.live import model_placement
+    from photorecon.report.result import result_model
+
+    out, info = _with_report_json(textured, tmp_path)
+    glb, placement = result_model(out)
+    assert glb == (out / "model.glb").read_bytes()
+    for k, v in model_placement(info).items():
+        assert np.allclose(placement[k], v)
+    raw = trimesh.load(out / "model.glb", process=False, force="mesh")
+    R = Rotation.from_quat(placement["wxyz"], scalar_first=True).as_matrix()
+    moved = placement["scale"] * np.asarray(raw.vertices) @ R.T + placement["position"]
+    assert np.allclose(moved, _in_reconstruction_frame(out, info).vertices, atol=1e-5)
+    assert result_model(out / "mesh.ply") is None  # a mesh file: no model
+
+
+def test_live_view_serves_the_textured_model_with_a_switch_to_the_mesh(textured, tmp_path):
+    """The live viewer of a result with model.glb sends the model's GLB besides the mesh; a result
+    without one, or whose report has no readable frame (a warning; the mesh is shown), sends the mesh only."""
+    import json
+
+    from test_view_security import receives_all
+    from photorecon.report import load_result, start_viewer_server, stop_viewer_server
+    from photorecon.report.result import result_model
+
+    out, info = _with_report_json(textured, tmp_path)
+    mesh, cams, images = load_result(out)
+    sizes = {}
+    for name, model in (("model", result_model(out)), ("mesh", None)):
+        srv = start_viewer_server(mesh, cams, {}, "127.0.0.1", 0, lighting="plain", model=model)
+        try:
+            port = srv.get_port()
+            sizes[name] = receives_all(port, f"http://127.0.0.1:{port}")
+        finally:
+            stop_viewer_server(srv)
+    # the GLB goes over the WebSocket compressed (0.87 of its size measured)
+    assert sizes["model"] >= sizes["mesh"] + 0.5 * (out / "model.glb").stat().st_size, sizes
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)  # report.json's frame a mirror
+    report = json.loads((bad / "report.json").read_text())
+    report["texture"]["frame"]["model_from_reconstruction"] = np.diag([1.0, 1.0, -1.0, 1.0]).tolist()  # a mirror
+    (bad / "report.json").write_text(json.dumps(report))
+    assert result_model(bad) is None

@@ -38,6 +38,24 @@ def handshake(port: int, host: str, origin: str | None, websocket: bool = True, 
     return int(data.split(b" ", 2)[1])
 
 
+def receives_all(port: int, origin: str, quiet: float = 2.0, timeout: float = 30.0) -> int:
+    """Bytes of scene messages a WebSocket client with this ``Origin`` receives until none comes for ``quiet`` s
+    (or ``timeout`` s in all)."""
+    import viser
+    from websockets.sync.client import connect
+
+    got = 0
+    with connect(f"ws://127.0.0.1:{port}", origin=origin, subprotocols=[f"viser-v{viser.__version__}"],
+                 open_timeout=timeout, max_size=None) as ws:
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            try:
+                got += len(ws.recv(timeout=quiet))
+            except TimeoutError:
+                break
+    return got
+
+
 def receives_scene(port: int, origin: str, timeout: float = 10.0) -> int:
     """Bytes of scene messages a WebSocket client with this ``Origin`` receives within ``timeout`` s."""
     import viser
