@@ -51,10 +51,10 @@ COMMAND_WRITES: dict[str, tuple[str, ...] | None] = {
 }
 # working folders whose content is complete piece by piece (task outputs, stage markers): kept after a failed run,
 # for the next run to reuse
+RESUMABLE_NAMES = (".stages", ".work", ".mvs_work", ".mono_work", "colmap")
 # a depth map's resolution by its pyramid level below its view's working resolution, as the depth stage's
 # mvs_report.json names it per view ("resolution") and the fusion reads it back
 DEPTH_RESOLUTIONS = {0: "full", 1: "half", 2: "quarter"}
-RESUMABLE_NAMES = (".stages", ".work", ".mvs_work", ".mono_work", "colmap")
 
 
 @dataclass(frozen=True)

@@ -47,8 +47,8 @@ class MVSContext:
     work: Path
     out: Path
     filter_sources: dict[str, list[str]] = field(default_factory=dict)  # view -> the views its filter checks
-    # view -> the pyramid level its depth map stops at (0: the working resolution; 1: half of it, a view whose
-    # surface others see as finely: ``views.half_resolution_views``); a view not named: 0
+    # view -> the pyramid level its depth map stops at (0: the working resolution; 1: half of it, 2: a quarter:
+    # ``views.half_resolution_views``, ``views.mesh_levels``); a view not named: 0
     levels: dict[str, int] = field(default_factory=dict)
 
 
