@@ -55,9 +55,10 @@ class ViewChoice:
         d = {"chosen": len(self.chosen), "of": self.total, "reason": self.reason,
              "uncovered_points": self.uncovered_points}
         if self.resolution or self.mesh_coarser:
-            d["half_resolution"] = sum(1 for n in self.chosen if self.level(n) == 1)
-            if any(self.level(n) > 1 for n in self.chosen):
-                d["quarter_resolution"] = sum(1 for n in self.chosen if self.level(n) == 2)
+            levels = [self.level(n) for n in self.chosen]
+            d["half_resolution"] = levels.count(1)
+            if levels.count(2):
+                d["quarter_resolution"] = levels.count(2)
         if self.mesh_footprint is not None:
             d["mesh_footprint"] = self.mesh_footprint
         return d if self.surface_samples is None else {**d, "surface_samples": self.surface_samples}

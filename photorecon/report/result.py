@@ -134,14 +134,13 @@ def result_model(path: str | Path) -> tuple[bytes, dict] | None:
 
     from .live import model_placement
 
-    out = Path(path)
-    glb = Layout(out).model("glb") if out.is_dir() else None
-    if glb is None or not glb.is_file():
+    layout = Layout(path)
+    glb = layout.model("glb")
+    if not Path(path).is_dir() or not glb.is_file():
         return None
     try:
-        report = json.loads(Layout(out).report_json.read_text()) if Layout(out).report_json.is_file() else {}
-        texture = report.get("texture") if isinstance(report, dict) else None
-        placement = model_placement(texture if isinstance(texture, dict) else None)
+        report = json.loads(layout.report_json.read_text()) if layout.report_json.is_file() else {}
+        placement = model_placement(report.get("texture") if isinstance(report, dict) else None)
         return glb.read_bytes(), placement
     except (OSError, ValueError) as exc:
         log.warning("view: %s is not shown (%s); showing the mesh", glb, exc)

@@ -38,9 +38,9 @@ def handshake(port: int, host: str, origin: str | None, websocket: bool = True, 
     return int(data.split(b" ", 2)[1])
 
 
-def receives_all(port: int, origin: str, quiet: float = 2.0, timeout: float = 30.0) -> int:
-    """Bytes of scene messages a WebSocket client with this ``Origin`` receives until none comes for ``quiet`` s
-    (or ``timeout`` s in all)."""
+def _receive(port: int, origin: str, timeout: float, enough: int | None = None, quiet: float | None = None) -> int:
+    """Bytes of scene messages a WebSocket client with this ``Origin`` receives within ``timeout`` s: until it has
+    ``enough`` of them, or until none comes for ``quiet`` s."""
     import viser
     from websockets.sync.client import connect
 
@@ -48,30 +48,24 @@ def receives_all(port: int, origin: str, quiet: float = 2.0, timeout: float = 30
     with connect(f"ws://127.0.0.1:{port}", origin=origin, subprotocols=[f"viser-v{viser.__version__}"],
                  open_timeout=timeout, max_size=None) as ws:
         deadline = time.time() + timeout
-        while time.time() < deadline:
+        while (enough is None or got < enough) and time.time() < deadline:
+            wait = max(0.1, deadline - time.time()) if quiet is None else quiet
             try:
-                got += len(ws.recv(timeout=quiet))
+                got += len(ws.recv(timeout=wait))
             except TimeoutError:
                 break
     return got
+
+
+def receives_all(port: int, origin: str, quiet: float = 2.0, timeout: float = 30.0) -> int:
+    """Bytes of scene messages received until none comes for ``quiet`` s (or ``timeout`` s in all)."""
+    return _receive(port, origin, timeout, quiet=quiet)
 
 
 def receives_scene(port: int, origin: str, timeout: float = 10.0) -> int:
-    """Bytes of scene messages a WebSocket client with this ``Origin`` receives within ``timeout`` s."""
-    import viser
-    from websockets.sync.client import connect
-
-    got = 0
-    with connect(f"ws://127.0.0.1:{port}", origin=origin, subprotocols=[f"viser-v{viser.__version__}"],
-                 open_timeout=timeout, max_size=None) as ws:
-        deadline = time.time() + timeout
-        while got < 10_000 and time.time() < deadline:
-            try:
-                msg = ws.recv(timeout=max(0.1, deadline - time.time()))
-            except TimeoutError:
-                break
-            got += len(msg)
-    return got
+    """Bytes of scene messages a WebSocket client with this ``Origin`` receives within ``timeout`` s (it stops
+    after 10,000)."""
+    return _receive(port, origin, timeout, enough=10_000)
 
 
 @pytest.fixture(scope="module")
