@@ -96,7 +96,7 @@ def reconstruct(name: str, root: Path, out: Path, perturbation: str, refuse: boo
     if refuse:
         if not (work / ".stages" / "depth.json").is_file():
             raise SystemExit(f"{work}: no depth stage of an earlier run to reuse; run without --refuse first")
-        for stage in ("fusion", "preview", "texture"):
+        for stage in ("fusion", "preview", "model"):
             (work / ".stages" / f"{stage}.json").unlink(missing_ok=True)
     elif work.exists():
         shutil.rmtree(work)
@@ -118,18 +118,6 @@ def reconstruct(name: str, root: Path, out: Path, perturbation: str, refuse: boo
             "report": report}
 
 
-def _find(d, key):
-    """The first value of ``key`` anywhere in the nested dict ``d``."""
-    if isinstance(d, dict):
-        if key in d:
-            return d[key]
-        for v in d.values():
-            found = _find(v, key)
-            if found is not None:
-                return found
-    return None
-
-
 def score(name: str, perturbation: str, run: dict, reference: np.ndarray) -> dict:
     from photorecon.mesh import load_mesh
     from photorecon.metrics import cloud_metrics
@@ -142,9 +130,9 @@ def score(name: str, perturbation: str, run: dict, reference: np.ndarray) -> dic
         row[f"F@{s.tau * 1000:g}mm"] = s.fscore
         row[f"acc@{s.tau * 1000:g}mm"] = s.precision
         row[f"comp@{s.tau * 1000:g}mm"] = s.recall
-    scene = _find(run["report"], "scene") or {}
-    row["scene"] = scene.get("detected") if isinstance(scene, dict) else scene
-    row["framed"] = scene.get("framed") if isinstance(scene, dict) else None
+    scene = (run["report"].get("mesh") or {}).get("scene") or {}  # the decision, not the --scene setting
+    row["scene"] = scene.get("detected")
+    row["framed"] = scene.get("framed")
     return row
 
 
