@@ -26,9 +26,10 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
 
     With ``local`` > 0 the search does not rest on luck: every other try is the plane fitted (least squares)
     to one random point and its ``local`` nearest neighbours (three random points all fall on a plane holding
-    5% of ``P`` once in 8,000 tries, one point once in 20), and every try that beats the best so far is refitted
-    to its own inliers until its count stops growing (LO-RANSAC, Chum et al. 2003), so a small patch's slightly
-    tilted plane becomes the whole flat area's."""
+    5% of ``P`` once in 8,000 tries, one point once in 20), and every try with at least half the best count so
+    far is refitted to its own inliers while its count grows (LO-RANSAC, Chum et al. 2003): a small patch's
+    slightly tilted plane becomes the whole flat area's, and the first refitted plane of a bowed support does
+    not shut out a better one found later."""
     best, best_k = None, 0
     min_cos = np.cos(np.radians(max_normal_deg))
     tree = None
@@ -65,21 +66,22 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
             continue
         near = inliers(n, c)
         k = int(near.sum())
-        if k <= best_k:
+        if k > best_k:
+            best, best_k = (n, c), k
+        if tree is None or k < max(3, best_k // 2):
             continue
-        best, best_k = (n, c), k
-        for _ in range(5 if tree is not None else 0):
-            if k < 3:
-                break
+        for _ in range(5):  # refit to the inliers while the count grows
             n2, centre = fit(P[near])
             c2 = float(n2 @ centre)
             if not allowed(n2, c2):
                 break
-            near = inliers(n2, c2)
-            k = int(near.sum())
-            if k <= best_k:
+            near2 = inliers(n2, c2)
+            k2 = int(near2.sum())
+            if k2 <= k:
                 break
-            best, best_k = (n2, c2), k
+            n, c, near, k = n2, c2, near2, k2
+            if k > best_k:
+                best, best_k = (n, c), k
     return best, best_k
 
 
