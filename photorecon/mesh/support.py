@@ -14,6 +14,12 @@ log = logging.getLogger("photorecon")
 LOCAL_FIT = 200  # support-plane tries fitted to a surface sample and this many of its nearest neighbours
 
 
+def fit_plane(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares plane of the points ``Q`` (N >= 3, 3): its unit normal (either sign) and their centre."""
+    centre = Q.mean(0)
+    return np.linalg.svd(Q - centre, full_matrices=False)[2][2], centre
+
+
 def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | None = None,
                  max_tilt_deg: float = 90.0, accept=None, normals: np.ndarray | None = None,
                  max_normal_deg: float = 30.0, local: int = 0):
@@ -44,17 +50,13 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
             near &= np.abs(normals @ n) > min_cos
         return near
 
-    def fit(Q):
-        centre = Q.mean(0)
-        return np.linalg.svd(Q - centre, full_matrices=False)[2][2], centre
-
     def allowed(n, c):
         return ((up is None or abs(n @ up) >= np.cos(np.radians(max_tilt_deg)))
                 and (accept is None or accept(n, c)))
 
     for i in range(iters):
         if tree is not None and i % 2:
-            n, a = fit(P[tree.query(P[rng.integers(len(P))], k=local + 1)[1]])
+            n, a = fit_plane(P[tree.query(P[rng.integers(len(P))], k=local + 1)[1]])
         else:
             a, b, c = P[rng.choice(len(P), 3, replace=False)]
             n = np.cross(b - a, c - a)
@@ -71,7 +73,7 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
         if tree is None or k < max(3, best_k // 2):
             continue
         for _ in range(5):  # refit to the inliers while the count grows
-            n2, centre = fit(P[near])
+            n2, centre = fit_plane(P[near])
             c2 = float(n2 @ centre)
             if not allowed(n2, c2):
                 break
@@ -150,9 +152,7 @@ def find_support_plane(points: np.ndarray, normals: np.ndarray, cameras, tol: fl
         return None
     n, c = best
     for _ in range(2):  # least squares on the inliers
-        inl = P[(np.abs(P @ n - c) < tol) & (np.abs(Nrm @ n) > flat)]
-        centre = inl.mean(0)
-        n2 = np.linalg.svd(inl - centre, full_matrices=False)[2][2]
+        n2, centre = fit_plane(P[(np.abs(P @ n - c) < tol) & (np.abs(Nrm @ n) > flat)])
         n = n2 if n2 @ n >= 0 else -n2
         c = float(n @ centre)
     if np.median(cams @ n - c) < 0:
