@@ -38,6 +38,7 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
     not shut out a better one found later."""
     best, best_k = None, 0
     min_cos = np.cos(np.radians(max_normal_deg))
+    min_up = np.cos(np.radians(max_tilt_deg))
     tree = None
     if local > 0 and len(P) > local:
         from scipy.spatial import cKDTree
@@ -51,7 +52,7 @@ def ransac_plane(P: np.ndarray, tol: float, iters: int, rng, up: np.ndarray | No
         return near
 
     def allowed(n, c):
-        return ((up is None or abs(n @ up) >= np.cos(np.radians(max_tilt_deg)))
+        return ((up is None or abs(n @ up) >= min_up)
                 and (accept is None or accept(n, c)))
 
     for i in range(iters):
