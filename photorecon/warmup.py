@@ -4,9 +4,9 @@ later processes load them in well under a second instead of compiling them (tens
 
 The kernels run through the same code paths as a reconstruction (PatchMatch MVS with its geometric filter and
 the planar prior on a tiny synthetic scene, then weighted TSDF fusion of its depth maps and the photometric
-refinement of that mesh; the hole filling's kernels on a hexagon), so they are compiled
-for the argument types a real run passes; the PatchMatch kernel only the tests call (``ncc_at``) runs on arrays
-of the same types. ``kernels()`` lists every compiled function
+refinement of that mesh; the hole filling's kernels on a hexagon; the seam levelling's rasteriser on a triangle),
+so they are compiled for the argument types a real run passes; the PatchMatch kernel only the tests call
+(``ncc_at``) runs on arrays of the same types. ``kernels()`` lists every compiled function
 of the package: ``tests/test_warmup.py`` checks that ``warm_up`` reaches each one.
 """
 from __future__ import annotations
@@ -77,6 +77,14 @@ def _tiny_hole_calls() -> None:
     boundary._pick_notches(P, nrm, np.array([0], np.int64), np.array([3], np.int64), 2.0, 0.5, 0.0)
 
 
+def _tiny_texture_calls() -> None:
+    """The seam levelling's rasteriser (``mesh.seams._raster``) with the argument types of its caller."""
+    from .mesh import seams
+
+    tri = np.array([[[0.0, 0.0], [3.0, 0.0], [0.0, 3.0]]])
+    seams._raster(tri, np.ones((1, 3, 3), np.float32), 4, 4, np.zeros((4, 4, 3), np.float32), np.zeros((4, 4), bool))
+
+
 def warm_up() -> dict:
     """Compile (or load from numba's cache) every kernel of the package. Returns the seconds, and the entry
     kernels (``entry_kernels``) compiled in this call and those loaded from the cache."""
@@ -111,6 +119,7 @@ def warm_up() -> dict:
             refine_dataset(mesh, ds, RefineConfig(refine=True, refine_levels=1, refine_iterations=2))
         _tiny_pm_calls()
         _tiny_hole_calls()
+        _tiny_texture_calls()
     finally:
         logging.getLogger("photorecon").setLevel(level)
         progress.set_enabled(was)

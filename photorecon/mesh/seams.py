@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.images import sample_bilinear
+from ..jit import njit
 from ..progress import bar
 
 BLEND = 2.0  # texels each side of a seam that local blending reaches (0 = none)
@@ -197,42 +198,33 @@ def solve_offsets(n: int, a: np.ndarray, b: np.ndarray, diff: np.ndarray, reg_ed
     return g
 
 
-def _raster(tri: np.ndarray, vals: np.ndarray, w: int, h: int, buf: np.ndarray, covered: np.ndarray,
-            chunk: int = 4_000_000) -> None:
-    """Write into ``buf`` (h, w, 3) the values ``vals`` (m, 3, 3) at the corners of triangles ``tri`` (m, 3, 2)
-    (texel coordinates, texel centres at integers), interpolated barycentrically at every texel centre inside a
-    triangle; ``covered`` (h, w) marks those texels."""
-    lo = np.clip(np.ceil(tri.min(1) - 1e-6), 0, [w - 1, h - 1]).astype(np.int64)
-    hi = np.clip(np.floor(tri.max(1) + 1e-6), -1, [w - 1, h - 1]).astype(np.int64)
-    nx, ny = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0), np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
-    cnt = nx * ny
-    ends = np.cumsum(cnt)
-    start = 0
-    while start < len(tri):
-        base = ends[start - 1] if start else 0
-        stop = max(start + 1, int(np.searchsorted(ends, base + chunk, side="right")))
-        sel = np.arange(start, min(stop, len(tri)))
-        start = stop
-        c = cnt[sel]
-        if not c.sum():
+@njit(cache=True)
+def _raster(tri: np.ndarray, vals: np.ndarray, w: int, h: int, buf: np.ndarray, covered: np.ndarray) -> None:
+    """Write into ``buf`` (h, w, 3) float32 the values ``vals`` (m, 3, 3) float32 at the corners of triangles ``tri``
+    (m, 3, 2) float64 (texel coordinates, texel centres at integers), interpolated barycentrically at every texel
+    centre inside a triangle (within 1e-4 of its edges); ``covered`` (h, w) marks those texels. A later triangle
+    overwrites an earlier one where they share texels."""
+    tol = -1e-4
+    for t in range(tri.shape[0]):
+        ax, ay = tri[t, 0, 0], tri[t, 0, 1]
+        bx, by = tri[t, 1, 0], tri[t, 1, 1]
+        cx, cy = tri[t, 2, 0], tri[t, 2, 1]
+        den = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        if abs(den) <= 1e-12:
             continue
-        fid = np.repeat(sel, c)
-        k = np.arange(len(fid)) - np.repeat(np.cumsum(c) - c, c)
-        px = lo[fid, 0] + k % nx[fid]
-        py = lo[fid, 1] + k // nx[fid]
-        A, B, C = tri[fid, 0], tri[fid, 1], tri[fid, 2]
-        den = (B[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            wb = ((px - A[:, 0]) * (C[:, 1] - A[:, 1]) - (py - A[:, 1]) * (C[:, 0] - A[:, 0])) / den
-            wc = ((B[:, 0] - A[:, 0]) * (py - A[:, 1]) - (B[:, 1] - A[:, 1]) * (px - A[:, 0])) / den
-        wa = 1 - wb - wc
-        tol = -1e-4
-        inside = (np.abs(den) > 1e-12) & (wa >= tol) & (wb >= tol) & (wc >= tol)
-        if not inside.any():
-            continue
-        f, wa, wb, wc = fid[inside], wa[inside, None], wb[inside, None], wc[inside, None]
-        buf[py[inside], px[inside]] = wa * vals[f, 0] + wb * vals[f, 1] + wc * vals[f, 2]
-        covered[py[inside], px[inside]] = True
+        x0 = max(int(np.ceil(min(ax, bx, cx) - 1e-6)), 0)
+        x1 = min(int(np.floor(max(ax, bx, cx) + 1e-6)), w - 1)
+        y0 = max(int(np.ceil(min(ay, by, cy) - 1e-6)), 0)
+        y1 = min(int(np.floor(max(ay, by, cy) + 1e-6)), h - 1)
+        for py in range(y0, y1 + 1):
+            for px in range(x0, x1 + 1):
+                wb = ((px - ax) * (cy - ay) - (py - ay) * (cx - ax)) / den
+                wc = ((bx - ax) * (py - ay) - (by - ay) * (px - ax)) / den
+                wa = 1.0 - wb - wc
+                if wa >= tol and wb >= tol and wc >= tol:
+                    for k in range(3):
+                        buf[py, px, k] = wa * vals[t, 0, k] + wb * vals[t, 1, k] + wc * vals[t, 2, k]
+                    covered[py, px] = True
 
 
 def apply_offsets(atlas: np.ndarray, offsets: np.ndarray, out_faces: np.ndarray, tex: np.ndarray,
@@ -259,7 +251,8 @@ def apply_offsets(atlas: np.ndarray, offsets: np.ndarray, out_faces: np.ndarray,
         w, h = int(w), int(h)
         buf = np.zeros((h, w, 3), np.float32)
         covered = np.zeros((h, w), bool)
-        _raster(tex[fs] - np.asarray(pos[r], np.float64), offsets[out_faces[fs]].astype(np.float32), w, h, buf, covered)
+        _raster(np.ascontiguousarray(tex[fs] - np.asarray(pos[r], np.float64)),
+                np.ascontiguousarray(offsets[out_faces[fs]], np.float32), w, h, buf, covered)
         if not covered.any():
             continue
         if not covered.all():
