@@ -305,8 +305,8 @@ def boundary_edges(mesh: trimesh.Trimesh) -> int:
 # faster at the same distance to the surface but leaves needles (the room scene's fused mesh, 728k -> 30k faces: 13%
 # of the faces with an angle under 5 degrees, against 0.3%; textured, 2.4 dB lower held out); with Open3D's last step
 # 1.0% (25.68 against 25.70 dB). Herz-Jesu-P8's fused mesh, 3.5 M -> 150k faces: the model's held-out PSNR the same
-# (30.42 against 30.43 dB), the simplification 21.1 against 72.2 CPU s. Where fast_simplification takes more than about a factor
-# of six itself (the room at 15k or 8k faces), textures come out up to 1.6 dB lower: hence FAST_MIN
+# (30.42 against 30.43 dB), the simplification 21.1 against 72.2 CPU s. Where fast_simplification takes more than
+# about a factor of six itself (the room at 15k or 8k faces), textures come out up to 1.6 dB lower: hence FAST_MIN
 FAST_MIN = 1_000_000
 FAST_TO = 4
 FAST_AGG = 4.0
@@ -371,4 +371,3 @@ def _carried_colours(mesh: trimesh.Trimesh, V2: np.ndarray) -> np.ndarray | None
     _, k = cKDTree(V).query(V2[n == 0], k=1)
     acc[n == 0] = colors[k, :3]
     return np.clip(acc / np.maximum(n, 1)[:, None] + 0.5, 0, 255).astype(np.uint8)
-

@@ -251,8 +251,7 @@ def apply_offsets(atlas: np.ndarray, offsets: np.ndarray, out_faces: np.ndarray,
         w, h = int(w), int(h)
         buf = np.zeros((h, w, 3), np.float32)
         covered = np.zeros((h, w), bool)
-        _raster(np.ascontiguousarray(tex[fs] - np.asarray(pos[r], np.float64)),
-                np.ascontiguousarray(offsets[out_faces[fs]], np.float32), w, h, buf, covered)
+        _raster(tex[fs] - np.asarray(pos[r], np.float64), offsets[out_faces[fs]].astype(np.float32), w, h, buf, covered)
         if not covered.any():
             continue
         if not covered.all():
